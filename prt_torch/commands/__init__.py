@@ -1,0 +1,1 @@
+"""One module per ``prt`` sub-command (see :mod:`prt_torch.cli`)."""

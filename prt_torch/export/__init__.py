@@ -1,0 +1,1 @@
+"""prt_torch.export."""
