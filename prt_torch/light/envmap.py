@@ -165,8 +165,10 @@ def probe_pixel_coords(dirs: np.ndarray) -> np.ndarray:
     dx, dy, dz = d[..., 0], d[..., 2], -d[..., 1]  # world -> y-up image frame
     rho = np.hypot(dx, dy)
     r = np.arccos(np.clip(dz, -1.0, 1.0)) / np.pi
-    scale = np.where(rho > 1e-12, r / np.where(rho > 1e-12, rho, 1.0), 0.0)
-    a, b = dx * scale, dy * scale
+    ok = rho > 1e-12
+    scale = r / np.where(ok, rho, 1.0)
+    a = np.where(ok, dx * scale, r)  # the centre (r = 0) or the rim point (r = 1, any azimuth: pick +a)
+    b = np.where(ok, dy * scale, 0.0)
     return np.stack([(a + 1) / 2, (1 - b) / 2], axis=-1)
 
 

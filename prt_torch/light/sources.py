@@ -43,6 +43,10 @@ def _unit(direction: object, name: str) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
+#: default sun direction: 60 degrees above the horizon, azimuth 30 degrees from +x toward +y (unit).
+DEFAULT_SUN = (0.4330127018922193, 0.25, 0.8660254037844386)
+
+
 def cap_zh(order: int, half_angle: float) -> np.ndarray:
     """ZH band coefficients ``g_l (n,)`` of a unit-power uniform spherical cap (``g_0 = 1``)."""
     check_order(order)
@@ -98,7 +102,7 @@ def cie_clear_sky(dirs: np.ndarray, sun_direction: np.ndarray) -> np.ndarray:
     return f(gamma) * phi / (f(theta_s) * (1.0 - np.exp(-0.32)))
 
 
-def sky_envmap(sun_direction: object = (0.4330127018922193, 0.25, 0.8660254037844386), sky_color: object = (0.35, 0.55, 1.0),
+def sky_envmap(sun_direction: object = DEFAULT_SUN, sky_color: object = (0.35, 0.55, 1.0),
                ground_color: object = (0.25, 0.22, 0.2), height: int = 128) -> EnvMap:
     """Render the procedural sky (without the sun disk) into a ``2H x H`` lat-long :class:`EnvMap`."""
     if not isinstance(height, int) or height < 4:
@@ -111,7 +115,7 @@ def sky_envmap(sun_direction: object = (0.4330127018922193, 0.25, 0.866025403784
     return EnvMap(img.astype(np.float32), "latlong", source="procedural sky")
 
 
-def sky_sh(order: int, sun_direction: object = (0.4330127018922193, 0.25, 0.8660254037844386), sun_color: object = (30.0, 28.0, 24.0),
+def sky_sh(order: int, sun_direction: object = DEFAULT_SUN, sun_color: object = (30.0, 28.0, 24.0),
            sky_color: object = (0.35, 0.55, 1.0), ground_color: object = (0.25, 0.22, 0.2),
            sun_half_angle: float = np.radians(0.53 / 2), height: int = 128) -> np.ndarray:
     """SH ``(C, 3)`` of a sun + clear sky + ground: CIE clear sky (projected by exact lat-long quadrature)
