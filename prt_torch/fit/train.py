@@ -225,7 +225,6 @@ def train_dataset(dataset: str | Path, run_dir: str | Path, cfg: TrainConfig | N
     cfg = cfg or TrainConfig()
     run_dir = Path(run_dir)
     info = dataset_info(dataset)
-    check(cfg.default_kind in cfg.kinds, f"train.default_kind '{cfg.default_kind}' is not among kinds {cfg.kinds}")
     torch.manual_seed(cfg.seed)
     train = load_split(dataset, "train")
     check(train.n_frames >= 2 * cfg.folds, f"{dataset}: only {train.n_frames} training frames for {cfg.folds} folds")

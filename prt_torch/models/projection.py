@@ -37,7 +37,7 @@ class InputProjection(nn.Module):
 class OutputUnprojection(nn.Module):
     """Reduced outputs ``z (B, G, Kmax)`` -> visibility ``(B, V, C)``.
 
-    ``basis (G, Kmax, Lmax)`` per-group (cluster) scaled components, ``gather (V*C,)`` int64
+    ``basis (G, Kmax, Lmax)`` per-group (cluster) scaled components, ``gather (V*C,)`` int32
     indices into the flattened ``(G * Lmax)`` group outputs, ``mean (V*C,)``. One batched matmul
     and one ``index_select``; no scatter, no sparse tensors.
     """
@@ -46,7 +46,7 @@ class OutputUnprojection(nn.Module):
                  mean: torch.Tensor | np.ndarray, n_vertices: int, n_coeffs: int) -> None:
         super().__init__()
         self.register_buffer("basis", torch.as_tensor(np.asarray(basis), dtype=torch.float32))
-        self.register_buffer("gather", torch.as_tensor(np.asarray(gather), dtype=torch.int64))
+        self.register_buffer("gather", torch.as_tensor(np.asarray(gather), dtype=torch.int32))
         self.register_buffer("mean", torch.as_tensor(np.asarray(mean), dtype=torch.float32))
         self.n_vertices = int(n_vertices)
         self.n_coeffs = int(n_coeffs)

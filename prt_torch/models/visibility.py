@@ -94,7 +94,7 @@ class VisibilityModel(nn.Module):
         v, c = int(config["n_vertices"]), int(config["n_coeffs"])
         g, k, lmax = (int(s) for s in config["basis_shape"])
         inp = InputProjection(torch.zeros(a), torch.zeros(a, d))
-        out = OutputUnprojection(torch.zeros(g, k, lmax), torch.zeros(v * c, dtype=torch.int64),
+        out = OutputUnprojection(torch.zeros(g, k, lmax), torch.zeros(v * c, dtype=torch.int32),
                                  torch.zeros(v * c), v, c)
         reg = REGRESSORS[kind](**config["regressor"])
         return cls(kind, inp, reg, out)
