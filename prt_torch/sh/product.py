@@ -36,7 +36,6 @@ tensors agree entry by entry. (sympy's ``Znm`` function itself differs again: it
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -44,6 +43,7 @@ import numpy as np
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import _is_torch, band_of, check_order, order_from_coeffs, sh_basis
+from prt_torch.sh.quadrature import gauss_product_rule
 
 if TYPE_CHECKING:
     import torch
@@ -100,20 +100,6 @@ class GauntTensor:
         return torch.from_numpy(self.dense()).to(dtype=dtype, device=device)
 
 
-def _product_rule(degree: int) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss-Legendre x uniform-phi rule, exact for spherical polynomials of ``degree``; float64."""
-    nt = degree // 2 + 1
-    nphi = degree + 1
-    z, wz = np.polynomial.legendre.leggauss(nt)
-    phi = (np.arange(nphi) + 0.5) * (2 * math.pi / nphi)
-    r = np.sqrt(np.clip(1 - z * z, 0, None))
-    dirs = np.stack(
-        [np.outer(r, np.cos(phi)), np.outer(r, np.sin(phi)), np.repeat(z[:, None], nphi, axis=1)], axis=-1
-    ).reshape(-1, 3)
-    w = np.repeat(wz * (2 * math.pi / nphi), nphi)
-    return dirs, w
-
-
 def _check_product_order(order: int) -> None:
     check_order(order, MAX_PRODUCT_ORDER)
 
@@ -121,7 +107,7 @@ def _check_product_order(order: int) -> None:
 @functools.cache
 def _dense_gaunt(order: int) -> np.ndarray:
     _check_product_order(order)
-    dirs, w = _product_rule(3 * (order - 1))
+    dirs, w = gauss_product_rule(3 * (order - 1))
     y = sh_basis(dirs, order, check=False)  # (N, C)
     g = np.einsum("ni,nj,nk->ijk", y * w[:, None], y, y, optimize=True)
     # exact zeros: selection rules (triangle + parity) plus round-off threshold

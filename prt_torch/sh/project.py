@@ -1,0 +1,109 @@
+"""SH projection of sampled spherical functions, and reconstruction from coefficients.
+
+``project`` computes ``f_i = sum_n w_n f(d_n) y_i(d_n)`` (a quadrature of ``int f y_i dw``); with a
+rule from :func:`prt_torch.sh.quadrature.sphere_quadrature` of degree ``>= deg(f) + order - 1`` it
+is exact for band-limited ``f``. With equal weights ``4 pi / N`` (or ``2 pi / N`` on a hemisphere set)
+it is the Monte-Carlo / low-discrepancy estimate used by the bake.
+
+numpy arrays and torch tensors are both accepted (torch imported lazily; differentiable).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, TypeVar
+
+import numpy as np
+
+from prt_torch.errors import PrtError
+from prt_torch.sh.basis import _is_torch, check_directions, check_order, order_from_coeffs, sh_basis
+
+if TYPE_CHECKING:
+    import torch
+
+Array = TypeVar("Array", "np.ndarray", "torch.Tensor")
+
+
+def _check_values(a: Any, name: str) -> None:
+    if not (isinstance(a, np.ndarray) or _is_torch(a)):
+        raise PrtError(f"{name} must be a numpy array or torch tensor, got {type(a).__name__}")
+    arr = a.detach().cpu().numpy() if _is_torch(a) else a
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise PrtError(f"{name} must be floating point, got {a.dtype}")
+    if not np.isfinite(arr).all():
+        raise PrtError(f"{name} contain NaN or Inf")
+
+
+def project(values: Array, dirs: Array, weights: Array, order: int, check: bool = True) -> Array:
+    """SH coefficients of a function sampled at quadrature directions.
+
+    Args:
+        values: ``(N, ...)`` samples ``f(d_n)`` (any trailing channel dims, e.g. ``(N, 3)`` RGB).
+        dirs: ``(N, 3)`` unit directions.
+        weights: ``(N,)`` quadrature weights (solid angle per sample; sum ``4 pi`` on the sphere).
+        order: number of bands ``n``; ``C = n*n``.
+        check: validate inputs.
+
+    Returns:
+        ``(C, ...)`` coefficients ``sum_n w_n y_i(d_n) f(d_n)``, in the backend/dtype of ``values``
+        (all three inputs must share a backend).
+    """
+    if check:
+        check_order(order)
+        _check_values(values, "values")
+        _check_values(weights, "weights")
+        check_directions(dirs, "projection directions")
+        if dirs.ndim != 2:
+            raise PrtError(f"projection directions must have shape (N, 3), got {tuple(dirs.shape)}")
+        n = dirs.shape[0]
+        if values.ndim < 1 or values.shape[0] != n:
+            raise PrtError(f"values must have shape (N, ...) with N = {n} directions, got {tuple(values.shape)}")
+        if tuple(weights.shape) != (n,):
+            raise PrtError(f"weights must have shape ({n},), got {tuple(weights.shape)}")
+        if len({_is_torch(values), _is_torch(dirs), _is_torch(weights)}) != 1:
+            raise PrtError("values, dirs and weights must be all numpy or all torch")
+    y = sh_basis(dirs, order, check=False)  # (N, C)
+    yw = (y * weights[:, None]).T  # (C, N)
+    if _is_torch(values):
+        yw = yw.to(values.dtype)
+    else:
+        yw = yw.astype(np.result_type(values.dtype, yw.dtype), copy=False)
+    flat = values.reshape(values.shape[0], -1)
+    return (yw @ flat).reshape((yw.shape[0],) + tuple(values.shape[1:]))
+
+
+def reconstruct(coeffs: Array, dirs: Array, check: bool = True) -> Array:
+    """Evaluate SH expansions at directions: ``f(d_n) = sum_i c_i y_i(d_n)``.
+
+    Args:
+        coeffs: ``(..., C)`` coefficients, coefficient axis **last**.
+        dirs: ``(N, 3)`` unit directions (same backend as ``coeffs``).
+
+    Returns:
+        ``(..., N)`` values. For coefficient-first data such as lighting ``(C, 3)`` use :func:`evaluate`.
+    """
+    if check:
+        _check_values(coeffs, "SH coefficients")
+        if coeffs.ndim < 1:
+            raise PrtError(f"SH coefficients must have shape (..., C), got {tuple(coeffs.shape)}")
+        check_directions(dirs, "reconstruction directions")
+        if dirs.ndim != 2:
+            raise PrtError(f"reconstruction directions must have shape (N, 3), got {tuple(dirs.shape)}")
+        if _is_torch(coeffs) != _is_torch(dirs):
+            raise PrtError("coeffs and dirs must be both numpy or both torch")
+    order = order_from_coeffs(int(coeffs.shape[-1]))
+    check_order(order)
+    y = sh_basis(dirs, order, check=False)  # (N, C)
+    y = y.to(coeffs.dtype) if _is_torch(coeffs) else y
+    return coeffs @ y.T
+
+
+def evaluate(coeffs: Array, dirs: Array, check: bool = True) -> Array:
+    """Inverse of :func:`project` in layout: ``coeffs (C, ...)`` -> values ``(N, ...)`` at ``dirs (N, 3)``."""
+    if check:
+        _check_values(coeffs, "SH coefficients")
+        if coeffs.ndim < 1:
+            raise PrtError(f"SH coefficients must have shape (C, ...), got {tuple(coeffs.shape)}")
+    c = coeffs.shape[0]
+    flat = coeffs.reshape(c, -1)
+    out = reconstruct(flat.T, dirs, check=check)  # (P, N)
+    return out.T.reshape((dirs.shape[0],) + tuple(coeffs.shape[1:]))
