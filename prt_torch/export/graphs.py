@@ -1,0 +1,171 @@
+"""The torch modules that become the run-time ONNX graphs.
+
+* :class:`ShadingGraph` - RPO shading under ZH lighting lobes (seed 003 eq. 11 with the lobes of
+  sec. 5.5 rotated into each vertex frame), every BRDF and lighting tensor a graph *input* so that
+  materials and lights swap at run time;
+* :class:`VisibilityGraph` - pose features -> local-frame SH visibility (wraps a ``VisibilityModel``);
+* :class:`FusedGraph` - both in one graph.
+
+Shapes: ``B`` batch, ``V`` vertices, ``C = n*n`` SH coefficients of order ``n``, ``K`` lighting
+lobes, ``k`` BRDF terms, ``A`` pose-feature width. Frames ``F (B, V, 3, 3)`` have rows ``(t, b, n)``
+in world coordinates, so a world direction ``w`` has local coordinates ``F @ w`` (docs/DESIGN.md).
+
+Shading, per vertex, with local lighting ``l (C, 3)``, visibility ``v (C,)``, local view ``wo``::
+
+    a_b  = w_b . y(wo)                         (k,)    view factor of BRDF term b
+    z_b  = M_b v                               (k, C)  one GEMM for all vertices: v @ M^T
+    L_c  = tint_c * sum_b a_b * (l_c . z_b)    (3,)
+
+and the local lighting of ``K`` ZH lobes ``(s_K, g_K (n, 3))`` is ``l = sum_K g_K[band] * y(F s_K)``.
+SH are evaluated as polynomials: a monomial table of the direction times a constant matrix
+(:func:`sh_polynomial`), one MatMul in the graph instead of a long chain of small ops.
+"""
+
+from __future__ import annotations
+
+import itertools
+from functools import cache
+
+import numpy as np
+import torch
+from torch import nn
+
+from prt_torch.sh.basis import band_of, check_order, sh_basis
+
+#: graph input names, in order
+SHADING_INPUTS = ("visibility", "frames", "view_dirs", "lobe_dirs", "lobe_coeffs", "rpo_M", "rpo_w", "rpo_tint")
+FUSED_INPUTS = ("pose",) + SHADING_INPUTS[1:]
+VISIBILITY_INPUTS = ("pose",)
+
+
+@cache
+def sh_polynomial(order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Exact polynomial form of the real SH basis of ``order``.
+
+    Returns:
+        ``exponents (P, 3)`` int64 - monomials ``x^a y^b z^c`` with ``a + b + c < order``;
+        ``coeffs (P, C)`` float64 - so that ``sh_basis(d) = monomials(d) @ coeffs`` for any ``d``
+        (the basis of :mod:`prt_torch.sh.basis` is a polynomial of degree ``< order`` in x, y, z,
+        recovered here by an exact least-squares solve on random non-unit points).
+    """
+    check_order(order)
+    exps = np.array([e for e in itertools.product(range(order), repeat=3) if sum(e) < order], dtype=np.int64)
+    pts = np.random.default_rng(0).uniform(-1.0, 1.0, size=(4 * len(exps) + 16, 3))
+    mono = np.prod(pts[:, None, :] ** exps[None, :, :], axis=-1)
+    target = sh_basis(pts, order, check=False)
+    coeffs, *_ = np.linalg.lstsq(mono, target, rcond=None)
+    coeffs[np.abs(coeffs) < 1e-12] = 0.0
+    return exps, coeffs
+
+
+class SHPolynomial(nn.Module):
+    """Real SH basis of directions stored *component-first*: ``(..., 3, N) -> (..., C, N)``.
+
+    Evaluated as ``coeffs^T @ monomials`` with the monomials built by elementwise products of
+    ``N``-long rows (vectorises well in onnxruntime), then one MatMul.
+    """
+
+    def __init__(self, order: int) -> None:
+        super().__init__()
+        exps, coeffs = sh_polynomial(order)
+        self.order = order
+        self.exps = [tuple(int(v) for v in e) for e in exps]
+        self.register_buffer("coeffs_t", torch.as_tensor(coeffs.T.copy(), dtype=torch.float32), persistent=False)
+
+    def forward(self, d: torch.Tensor) -> torch.Tensor:
+        comps = [d[..., 0, :], d[..., 1, :], d[..., 2, :]]
+        powers = []
+        for t in comps:
+            p = [torch.ones_like(t), t]
+            for _ in range(2, self.order):
+                p.append(p[-1] * t)
+            powers.append(p)
+        mono = []
+        for a, b, c in self.exps:
+            terms = [powers[0][a]] if a else []
+            if b:
+                terms.append(powers[1][b])
+            if c:
+                terms.append(powers[2][c])
+            m = terms[0] if terms else powers[0][0]
+            for t in terms[1:]:
+                m = m * t
+            mono.append(m)
+        return self.coeffs_t @ torch.stack(mono, dim=-2)  # (C, P) @ (..., P, N)
+
+
+class ShadingGraph(nn.Module):
+    """RPO shading of local-frame visibility under ZH lobes, seen from given view directions.
+
+    Inputs (float32):
+        visibility ``(B, V, C)`` local-frame SH visibility;
+        frames ``(B, V, 3, 3)`` rows ``(t, b, n)`` in world coordinates;
+        view_dirs ``(B, V, 3)`` unit world directions from the vertex towards the eye;
+        lobe_dirs ``(K, 3)`` unit world lobe axes; lobe_coeffs ``(K, n, 3)`` per band, RGB;
+        rpo_M ``(k, C, C)``, rpo_w ``(k, C)``, rpo_tint ``(3,)`` - the RPO.
+
+    Output: radiance ``(B, V, 3)`` (linear, RGB).
+
+    Internally everything is laid out vertex-last (``(B, ..., V)``) so that each step is either a
+    MatMul with a small constant-size matrix or an elementwise product of contiguous V-long rows.
+    """
+
+    def __init__(self, order: int, n_terms: int = 8) -> None:
+        super().__init__()
+        self.order = order
+        self.max_terms = n_terms
+        self.sh = SHPolynomial(order)
+        self.register_buffer("band", torch.as_tensor(band_of(order)), persistent=False)
+
+    def forward(self, visibility: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor,
+                lobe_dirs: torch.Tensor, lobe_coeffs: torch.Tensor, rpo_M: torch.Tensor, rpo_w: torch.Tensor,
+                rpo_tint: torch.Tensor) -> torch.Tensor:
+        k, c, _ = rpo_M.shape
+        n_lobes = lobe_dirs.shape[0]
+        b, v = frames.shape[0], frames.shape[1]
+        ft = frames.reshape(b, v, 9).transpose(1, 2)  # (B, 9, V): ft[., 3i+j, v] = F[v, i, j]
+        # local coordinates F @ s of the K lobe axes: one MatMul with kron(I3, s) (K*3, 9)
+        eye3 = torch.eye(3, dtype=frames.dtype)
+        s_kron = (eye3.reshape(1, 3, 3, 1) * lobe_dirs.reshape(n_lobes, 1, 1, 3)).reshape(n_lobes * 3, 9)
+        s_loc = (s_kron @ ft).reshape(b, n_lobes, 3, v)  # (B, K, 3, V)
+        view_t = view_dirs.transpose(1, 2)  # (B, 3, V)
+        vx, vy, vz = view_t[:, 0], view_t[:, 1], view_t[:, 2]
+        wo = torch.stack([ft[:, 3 * i] * vx + ft[:, 3 * i + 1] * vy + ft[:, 3 * i + 2] * vz for i in range(3)],
+                         dim=1)  # (B, 3, V) local view direction F @ wo
+        y_lobes = self.sh(s_loc)  # (B, K, C, V)
+        y_view = self.sh(wo)  # (B, C, V)
+        a = rpo_w @ y_view  # (B, k, V): view factors w_b . y(wo)
+        z = (rpo_M.reshape(k * c, c) @ visibility.transpose(1, 2)).reshape(b, k, c, v)  # (B, k, C, V): M_b v
+        zz = a[:, 0:1] * z[:, 0]
+        for t in range(1, self.max_terms):  # unrolled sum over BRDF terms (k is fixed at export)
+            zz = zz + a[:, t:t + 1] * z[:, t]  # (B, C, V)
+        g = lobe_coeffs.index_select(1, self.band)  # (K, C, 3)
+        g_t = g.permute(2, 0, 1).reshape(3, n_lobes * c)  # (3, K*C)
+        p = (y_lobes * zz.unsqueeze(1)).reshape(b, n_lobes * c, v)  # (B, K*C, V)
+        out = g_t @ p  # (B, 3, V)
+        return (out * rpo_tint.reshape(1, 3, 1)).transpose(1, 2)  # (B, V, 3)
+
+
+class VisibilityGraph(nn.Module):
+    """``pose (B, A) -> visibility (B, V, C)``: a thin wrapper fixing the graph's signature."""
+
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, pose: torch.Tensor) -> torch.Tensor:
+        return self.model(pose)
+
+
+class FusedGraph(nn.Module):
+    """Pose features straight to radiance: :class:`VisibilityGraph` then :class:`ShadingGraph`."""
+
+    def __init__(self, model: nn.Module, order: int, n_terms: int = 8) -> None:
+        super().__init__()
+        self.model = model
+        self.shading = ShadingGraph(order, n_terms)
+
+    def forward(self, pose: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor, lobe_dirs: torch.Tensor,
+                lobe_coeffs: torch.Tensor, rpo_M: torch.Tensor, rpo_w: torch.Tensor,
+                rpo_tint: torch.Tensor) -> torch.Tensor:
+        return self.shading(self.model(pose), frames, view_dirs, lobe_dirs, lobe_coeffs, rpo_M, rpo_w, rpo_tint)

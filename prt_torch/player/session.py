@@ -1,0 +1,116 @@
+"""ONNX Runtime sessions for the run-time path (numpy + onnxruntime only; never torch).
+
+:class:`OrtGraph` wraps an ``onnxruntime.InferenceSession`` with
+
+* thread settings for a small CPU (``intra_op_num_threads``, sequential execution, all graph
+  optimisations);
+* input validation against the graph's declared shapes (symbolic axes such as ``B`` accept any
+  size but must agree between inputs), float32 conversion and a NaN/Inf check, each failure a
+  one-line :class:`PrtError`;
+* a fast path (:meth:`OrtGraph.run_unchecked`) for the per-frame loop once inputs are known-good.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from prt_torch.errors import PrtError
+
+#: onnx tensor type string -> numpy dtype
+_ORT_TYPES = {"tensor(float)": np.float32, "tensor(double)": np.float64, "tensor(int64)": np.int64,
+              "tensor(int32)": np.int32, "tensor(bool)": np.bool_}
+
+
+def session_options(threads: int = 2):  # -> onnxruntime.SessionOptions
+    """Session options tuned for the per-frame loop on a few CPU cores."""
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = max(1, int(threads))
+    so.inter_op_num_threads = 1
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so.log_severity_level = 3
+    return so
+
+
+class OrtGraph:
+    """One ONNX graph loaded into onnxruntime (CPU), with checked and unchecked run methods.
+
+    Attributes:
+        path: the ``.onnx`` file.
+        metadata: its ``metadata_props`` (str -> str).
+        inputs: ``{name: shape}`` with ``str`` for symbolic axes and ``int`` for fixed ones.
+        outputs: output names in graph order.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], threads: int = 2) -> None:
+        import onnxruntime as ort
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise PrtError(f"ONNX file not found: {self.path}")
+        try:
+            self.session = ort.InferenceSession(str(self.path), sess_options=session_options(threads),
+                                                providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise PrtError(f"{self.path}: onnxruntime cannot load it ({str(exc).splitlines()[0][:200]})") from None
+        meta = self.session.get_modelmeta()
+        self.metadata: dict[str, str] = dict(meta.custom_metadata_map)
+        self.inputs: dict[str, tuple[int | str, ...]] = {
+            i.name: tuple(d if isinstance(d, int) else str(d) for d in i.shape) for i in self.session.get_inputs()}
+        self.input_types = {i.name: _ORT_TYPES.get(i.type, np.float32) for i in self.session.get_inputs()}
+        self.outputs: list[str] = [o.name for o in self.session.get_outputs()]
+
+    def check_inputs(self, feeds: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Validate and convert ``feeds``; returns contiguous arrays of the graph's dtypes.
+
+        Raises :class:`PrtError` for a missing/unknown input, a wrong rank or size, symbolic axes
+        that disagree between inputs, or non-finite values.
+        """
+        missing = [n for n in self.inputs if n not in feeds]
+        if missing:
+            raise PrtError(f"{self.path.name}: missing input(s) {', '.join(missing)}")
+        unknown = [n for n in feeds if n not in self.inputs]
+        if unknown:
+            raise PrtError(f"{self.path.name}: unknown input(s) {', '.join(unknown)}; expected {list(self.inputs)}")
+        symbols: dict[str, tuple[int, str]] = {}
+        out: dict[str, np.ndarray] = {}
+        for name, shape in self.inputs.items():
+            a = np.asarray(feeds[name])
+            if a.ndim != len(shape):
+                raise PrtError(f"{self.path.name}: input '{name}' must have {len(shape)} dims {_fmt(shape)}, "
+                               f"got shape {a.shape}")
+            for ax, (want, got) in enumerate(zip(shape, a.shape, strict=True)):
+                if isinstance(want, int) and want >= 0:
+                    if want != got:
+                        raise PrtError(f"{self.path.name}: input '{name}' axis {ax} must be {want} {_fmt(shape)}, "
+                                       f"got shape {a.shape}")
+                else:
+                    prev = symbols.setdefault(want, (got, name))
+                    if prev[0] != got:
+                        raise PrtError(f"{self.path.name}: axis '{want}' is {prev[0]} in '{prev[1]}' but {got} "
+                                       f"in '{name}'")
+            dtype = self.input_types[name]
+            a = np.ascontiguousarray(a, dtype=dtype)
+            if np.issubdtype(dtype, np.floating) and not np.isfinite(a).all():
+                raise PrtError(f"{self.path.name}: input '{name}' contains NaN or Inf")
+            out[name] = a
+        return out
+
+    def run(self, feeds: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Checked run: validates ``feeds`` and returns ``{output name: array}``."""
+        checked = self.check_inputs(feeds)
+        return dict(zip(self.outputs, self.session.run(self.outputs, checked), strict=True))
+
+    def run_unchecked(self, feeds: Mapping[str, np.ndarray]) -> list[np.ndarray]:
+        """The per-frame fast path: float32 contiguous inputs assumed; outputs in graph order."""
+        return self.session.run(self.outputs, feeds)
+
+
+def _fmt(shape: tuple[int | str, ...]) -> str:
+    return "(" + ", ".join(str(d) for d in shape) + ")"
