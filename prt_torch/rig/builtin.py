@@ -1,0 +1,524 @@
+"""The built-in procedural humanoid and its six motions (numpy only, deterministic).
+
+Geometry: ~1.8 units tall, standing on ``z = 0``, **facing -y** (its left is ``+x``), z up. The
+surface is the zero set of a smooth union (log-sum-exp smooth minimum, radius ``BLEND``) of
+ellipsoids (pelvis, abdomen, chest, head, hands) and tapered capsules (neck, clavicles, limbs, feet),
+extracted with surface nets on a regular grid (spacing ``GRID_SPACING / sqrt(density)``), projected
+back onto the implicit surface by Newton steps and relaxed. The result is closed, 2-manifold,
+genus 0 and outward oriented; ``density=1`` gives ~11-12k vertices, vertex count scales ~linearly
+with ``density``.
+
+Skeleton (21 joints, ``JOINT_NAMES``): pelvis (root) - spine - chest - neck - head; chest -
+clavicle - shoulder - elbow - wrist per side; pelvis - hip - knee - ankle - toe per side. Bind pose:
+an A-pose with the arms 45 degrees from the vertical and the legs slightly apart. Every joint's
+bind frame is world aligned except the arm chain (shoulder, elbow, wrist), whose frames are rotated
+so the arm lies along the local ``-z`` axis (then forward flexion of every limb is a rotation about
+the local ``-x`` axis).
+
+Skin weights: each surface part belongs to one joint; a vertex's weight for joint ``j`` is
+``exp(-(d_p - d_min) / SKIN_FALLOFF)`` summed over ``j``'s parts (``d_p``: the part's distance
+function), restricted to the skeleton neighbours (parent, children) of the vertex's nearest part's
+joint, smoothed over the mesh, reduced to the top 4 and normalised.
+
+Motions (30 fps, root motion is vertical/planted only, the character stays in place): ``walk``,
+``run``, ``jumping_jacks``, ``squat``, ``wave``, ``stretch``. Feet are kept on the ground: each frame
+the root is shifted so that the lowest foot joint keeps its bind height and the ankles' mean
+horizontal position stays fixed (plus an explicit hop for jumps and runs).
+
+Joint limits (for :func:`prt_torch.rig.random_pose.random_poses`) are in ``JOINT_LIMITS_DEG``:
+bind-relative angles ``(a_x, a_y, a_z)`` composed ``R_bind @ R_x(a_x) @ R_z(a_z) @ R_y(a_y)``, left side
+given, right side mirrored (``a_y, a_z`` negated); the root is fixed at its bind pose.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from prt_torch.errors import check
+from prt_torch.rig.character import Character
+from prt_torch.rig.clip import Clip
+from prt_torch.rig.rotations import axis_angle_matrix
+from prt_torch.rig.skeleton import forward_kinematics
+from prt_torch.rig.surface_nets import surface_nets
+
+NAME = "builtin-humanoid"
+FPS = 30.0
+GRID_SPACING = 0.0143  # metres at density 1
+BLEND = 0.018  # smooth-union radius of the implicit surface
+SKIN_FALLOFF = 0.02  # skin weight falloff distance
+ARM_BIND_ELEVATION = 45.0  # degrees from straight down
+ARM_REST_ELEVATION = 14.0  # arms hanging beside (not through) the torso in the motions
+CLIP_NAMES = ("walk", "run", "jumping_jacks", "squat", "wave", "stretch")
+
+# name, parent, bind world position (before grounding)
+_SIDE = {"l": 1.0, "r": -1.0}
+_SHOULDER = np.array([0.19, 0.0, 1.44])
+_ARM_DIR = np.array([np.sin(np.radians(ARM_BIND_ELEVATION)), 0.0, -np.cos(np.radians(ARM_BIND_ELEVATION))])
+UPPER_ARM, FOREARM, HAND = 0.28, 0.25, 0.17
+
+
+def _joint_table() -> list[tuple[str, str | None, np.ndarray]]:
+    t: list[tuple[str, str | None, np.ndarray]] = [
+        ("pelvis", None, np.array([0.0, 0.0, 0.96])),
+        ("spine", "pelvis", np.array([0.0, 0.0, 1.08])),
+        ("chest", "spine", np.array([0.0, 0.0, 1.26])),
+        ("neck", "chest", np.array([0.0, 0.0, 1.47])),
+        ("head", "neck", np.array([0.0, 0.0, 1.58])),
+    ]
+    for s, sx in _SIDE.items():
+        m = np.array([sx, 1.0, 1.0])
+        sh = _SHOULDER * m
+        el = sh + UPPER_ARM * _ARM_DIR * m
+        wr = el + FOREARM * _ARM_DIR * m
+        t += [(f"clavicle_{s}", "chest", np.array([0.03 * sx, 0.0, 1.43])), (f"shoulder_{s}", f"clavicle_{s}", sh),
+              (f"elbow_{s}", f"shoulder_{s}", el), (f"wrist_{s}", f"elbow_{s}", wr)]
+    for s, sx in _SIDE.items():
+        t += [(f"hip_{s}", "pelvis", np.array([0.095 * sx, 0.0, 0.92])),
+              (f"knee_{s}", f"hip_{s}", np.array([0.11 * sx, 0.0, 0.52])),
+              (f"ankle_{s}", f"knee_{s}", np.array([0.12 * sx, 0.0, 0.10])),
+              (f"toe_{s}", f"ankle_{s}", np.array([0.12 * sx, -0.13, 0.03]))]
+    return t
+
+
+JOINT_NAMES: list[str] = [n for n, _, _ in _joint_table()]
+_IDX = {n: i for i, n in enumerate(JOINT_NAMES)}
+
+
+def _bind_world_rotations() -> np.ndarray:
+    rots = np.tile(np.eye(3), (len(JOINT_NAMES), 1, 1))
+    for s, sx in _SIDE.items():
+        r = axis_angle_matrix([0.0, 1.0, 0.0], -sx * np.radians(ARM_BIND_ELEVATION))
+        for j in ("shoulder", "elbow", "wrist"):
+            rots[_IDX[f"{j}_{s}"]] = r
+    return rots
+
+
+# ---------------------------------------------------------------------------------------------
+# implicit surface
+@dataclass(frozen=True)
+class _Part:
+    joint: str
+    kind: str  # "capsule" | "ellipsoid"
+    a: tuple[float, float, float]  # capsule start / ellipsoid centre
+    b: tuple[float, float, float]  # capsule end / ellipsoid radii
+    ra: float = 0.0
+    rb: float = 0.0
+
+
+def _parts() -> list[_Part]:
+    jp = {n: p for n, _, p in _joint_table()}
+    P: list[_Part] = [
+        _Part("pelvis", "ellipsoid", (0.0, 0.01, 0.95), (0.165, 0.11, 0.11)),
+        _Part("spine", "ellipsoid", (0.0, 0.0, 1.11), (0.14, 0.097, 0.15)),
+        _Part("chest", "ellipsoid", (0.0, 0.0, 1.29), (0.16, 0.105, 0.16)),
+        _Part("neck", "capsule", (0.0, 0.005, 1.42), (0.0, 0.005, 1.58), 0.052, 0.048),
+        _Part("head", "ellipsoid", (0.0, -0.012, 1.685), (0.083, 0.098, 0.113)),
+    ]
+    for s, sx in _SIDE.items():
+        sh, el, wr = jp[f"shoulder_{s}"], jp[f"elbow_{s}"], jp[f"wrist_{s}"]
+        d = (wr - el) / np.linalg.norm(wr - el)
+        hand_c = wr + d * 0.085
+        P += [
+            _Part(f"clavicle_{s}", "capsule", (0.04 * sx, 0.0, 1.415), tuple(sh + np.array([0, 0, -0.005])), 0.05,
+                  0.052),
+            _Part(f"shoulder_{s}", "capsule", tuple(sh), tuple(el), 0.05, 0.038),
+            _Part(f"elbow_{s}", "capsule", tuple(el), tuple(wr), 0.037, 0.027),
+            _Part(f"wrist_{s}", "capsule", tuple(wr + d * 0.03), tuple(hand_c + d * 0.03), 0.034, 0.03),
+        ]
+        hp, kn, an, to = jp[f"hip_{s}"], jp[f"knee_{s}"], jp[f"ankle_{s}"], jp[f"toe_{s}"]
+        P += [
+            _Part(f"hip_{s}", "capsule", tuple(hp + np.array([0, 0, 0.02])), tuple(kn), 0.083, 0.052),
+            _Part(f"knee_{s}", "capsule", tuple(kn), tuple(an), 0.05, 0.034),
+            _Part(f"ankle_{s}", "capsule", tuple(an + np.array([0, 0.035, -0.06])), tuple(to + np.array([0, 0.0, 0.0])),
+                  0.04, 0.036),
+            _Part(f"toe_{s}", "capsule", tuple(to), tuple(to + np.array([0, -0.06, -0.002])), 0.034, 0.028),
+        ]
+    return P
+
+
+def _part_distances(parts: list[_Part], p: np.ndarray) -> np.ndarray:
+    """Distance-like functions ``(P, N)`` of the parts at points ``p (N, 3)`` (negative inside)."""
+    out = np.empty((len(parts), p.shape[0]))
+    for i, part in enumerate(parts):
+        a = np.asarray(part.a)
+        b = np.asarray(part.b)
+        if part.kind == "capsule":
+            ab = b - a
+            t = np.clip((p - a) @ ab / (ab @ ab), 0.0, 1.0)
+            out[i] = np.linalg.norm(p - (a + t[:, None] * ab), axis=1) - (part.ra + t * (part.rb - part.ra))
+        else:
+            q = (p - a) / b
+            k0 = np.linalg.norm(q, axis=1)
+            k1 = np.linalg.norm(q / b, axis=1)
+            out[i] = np.where(k1 > 1e-12, k0 * (k0 - 1.0) / np.maximum(k1, 1e-12), -b.min())
+    return out
+
+
+def _smooth_union(d: np.ndarray, k: float = BLEND) -> np.ndarray:
+    m = d.min(axis=0)
+    return m - k * np.log(np.exp(-(d - m) / k).sum(axis=0))
+
+
+def _sdf(parts: list[_Part], p: np.ndarray, chunk: int = 65536) -> np.ndarray:
+    out = np.empty(p.shape[0])
+    for s in range(0, p.shape[0], chunk):
+        out[s:s + chunk] = _smooth_union(_part_distances(parts, p[s:s + chunk]))
+    return out
+
+
+def _sdf_grad(parts: list[_Part], p: np.ndarray, eps: float = 1e-4) -> np.ndarray:
+    g = np.empty_like(p)
+    for c in range(3):
+        e = np.zeros(3)
+        e[c] = eps
+        g[:, c] = (_sdf(parts, p + e) - _sdf(parts, p - e)) / (2 * eps)
+    return g
+
+
+def _project(parts: list[_Part], p: np.ndarray, steps: int = 3) -> np.ndarray:
+    for _ in range(steps):
+        g = _sdf_grad(parts, p)
+        p = p - (_sdf(parts, p) / np.maximum((g * g).sum(1), 1e-12))[:, None] * g
+    return p
+
+
+def _adjacency(faces: np.ndarray, n: int):  # -> scipy.sparse.csr_matrix, row-normalised
+    import scipy.sparse as sp
+
+    i = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2], faces[:, 1], faces[:, 2], faces[:, 0]])
+    j = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0], faces[:, 0], faces[:, 1], faces[:, 2]])
+    a = sp.csr_matrix((np.ones(i.size), (i, j)), shape=(n, n))
+    a.data[:] = 1.0
+    deg = np.asarray(a.sum(axis=1)).ravel()
+    return sp.diags(1.0 / np.maximum(deg, 1)) @ a
+
+
+def _mesh(density: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    parts = _parts()
+    h = GRID_SPACING / np.sqrt(density)
+    lo = np.array([-0.75, -0.25, -0.06])
+    hi = np.array([0.75, 0.20, 1.86])
+    n = np.ceil((hi - lo) / h).astype(int) + 1
+    axes = [lo[c] + h * np.arange(n[c]) for c in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    values = _sdf(parts, grid).reshape(*n)
+    verts, faces = surface_nets(values, lo, h)
+    verts = _project(parts, verts)
+    lap = _adjacency(faces, verts.shape[0])
+    for _ in range(3):  # tangential relaxation: Laplacian step then re-projection
+        verts = _project(parts, verts + 0.5 * (lap @ verts - verts), steps=2)
+    g = _sdf_grad(parts, verts)
+    normals = g / np.linalg.norm(g, axis=1, keepdims=True)
+    return verts, faces, normals
+
+
+def _skin_weights(verts: np.ndarray, faces: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    parts = _parts()
+    d = _part_distances(parts, verts)  # (P, V)
+    part_joint = np.array([_IDX[p.joint] for p in parts])
+    j = len(JOINT_NAMES)
+    nearest = part_joint[np.argmin(d, axis=0)]  # (V,)
+    allowed = np.eye(j, dtype=bool)
+    for c, p in enumerate(parents):
+        if p >= 0:
+            allowed[c, p] = allowed[p, c] = True
+    score = np.exp(-(d - d.min(axis=0)) / SKIN_FALLOFF)  # (P, V)
+    w = np.zeros((verts.shape[0], j))
+    np.add.at(w.T, part_joint, score)
+    w *= allowed[nearest]
+    lap = _adjacency(faces, verts.shape[0])
+    for _ in range(4):
+        w = 0.5 * w + 0.5 * (lap @ w)
+    w /= w.sum(1, keepdims=True)
+    top = np.argsort(-w, axis=1, kind="stable")[:, :4]
+    tw = np.take_along_axis(w, top, axis=1)
+    tw /= tw.sum(1, keepdims=True)
+    return top.astype(np.int64), tw.astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# joint limits
+_LIMITS_LEFT_DEG: dict[str, tuple[tuple[float, float], tuple[float, float], tuple[float, float]]] = {
+    # joint: ((a_x min, max), (a_y min, max), (a_z min, max)); R = R_bind R_x(a_x) R_z(a_z) R_y(a_y)
+    "pelvis": ((0, 0), (0, 0), (0, 0)),
+    "spine": ((-15, 40), (-20, 20), (-25, 25)),
+    "chest": ((-15, 30), (-15, 15), (-20, 20)),
+    "neck": ((-30, 40), (-20, 20), (-50, 50)),
+    "head": ((-20, 25), (-15, 15), (-20, 20)),
+    "clavicle": ((0, 0), (-25, 10), (-20, 15)),
+    "shoulder": ((-100, 40), (-125, 31), (-45, 45)),  # a_y = -(elevation - 45): elevation 14..170 degrees
+    "elbow": ((-140, 0), (0, 0), (0, 0)),
+    "wrist": ((-60, 60), (-20, 30), (0, 0)),
+    "hip": ((-110, 25), (-45, 15), (-30, 30)),
+    "knee": ((0, 140), (0, 0), (0, 0)),
+    "ankle": ((-20, 40), (-15, 15), (-15, 15)),
+    "toe": ((-40, 20), (0, 0), (0, 0)),
+}
+
+
+def joint_limits_deg() -> np.ndarray:
+    """``(J, 3, 2)`` joint limits in degrees (see the module docstring for the convention)."""
+    lim = np.zeros((len(JOINT_NAMES), 3, 2))
+    for i, name in enumerate(JOINT_NAMES):
+        base, _, side = name.partition("_")
+        l = np.array(_LIMITS_LEFT_DEG[base], dtype=np.float64)
+        if side == "r":
+            l[1:] = -l[1:, ::-1]
+        lim[i] = l
+    return lim
+
+
+JOINT_LIMITS_DEG = joint_limits_deg()
+
+
+# ---------------------------------------------------------------------------------------------
+# motions: degrees-of-freedom curves -> local rotations
+def _R(axis: tuple[float, float, float], deg: np.ndarray) -> np.ndarray:
+    return axis_angle_matrix(np.asarray(axis, dtype=np.float64), np.radians(deg))
+
+
+NEUTRAL = {"shoulder_elev": ARM_REST_ELEVATION, "elbow": 10.0, "knee": 2.0, "hip_flex": 1.0}
+
+
+def _dof(d: dict[str, np.ndarray], key: str, n: int) -> np.ndarray:
+    if key in d:
+        return np.broadcast_to(np.asarray(d[key], dtype=np.float64), (n,))
+    base = key[2:] if key[:2] in ("l_", "r_") else key
+    return np.full(n, NEUTRAL.get(base, 0.0))
+
+
+def _dofs_to_rotations(d: dict[str, np.ndarray], n: int) -> np.ndarray:
+    """Local rotations ``(n, J, 3, 3)`` (parent frame, arm reference = hanging straight down) from DOF curves."""
+    rot = np.tile(np.eye(3), (n, len(JOINT_NAMES), 1, 1))
+
+    def g(k: str) -> np.ndarray:
+        return _dof(d, k, n)
+
+    X, Y, Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+    rot[:, _IDX["pelvis"]] = _R(Z, g("root_yaw")) @ _R(X, g("root_pitch")) @ _R(Y, g("root_roll"))
+    for j in ("spine", "chest"):
+        rot[:, _IDX[j]] = _R(Z, g(f"{j}_twist")) @ _R(X, g(f"{j}_flex")) @ _R(Y, g(f"{j}_side"))
+    for j in ("neck", "head"):
+        rot[:, _IDX[j]] = _R(Z, g(f"{j}_twist")) @ _R(X, g(f"{j}_flex")) @ _R(Y, g(f"{j}_side"))
+    for s, sx in _SIDE.items():
+        my = (0.0, -sx, 0.0)
+        mz = (0.0, 0.0, -sx)
+        rot[:, _IDX[f"clavicle_{s}"]] = _R(mz, g(f"{s}_clav_fwd")) @ _R(my, g(f"{s}_clav_up"))
+        rot[:, _IDX[f"shoulder_{s}"]] = (_R(mz, g(f"{s}_shoulder_horiz")) @ _R(X, -g(f"{s}_shoulder_flex"))
+                                         @ _R(my, g(f"{s}_shoulder_elev")) @ _R(Z, sx * g(f"{s}_shoulder_twist")))
+        rot[:, _IDX[f"elbow_{s}"]] = _R(X, -g(f"{s}_elbow"))
+        rot[:, _IDX[f"wrist_{s}"]] = _R(X, -g(f"{s}_wrist"))
+        rot[:, _IDX[f"hip_{s}"]] = (_R(Z, sx * g(f"{s}_hip_twist")) @ _R(X, -g(f"{s}_hip_flex"))
+                                    @ _R(my, g(f"{s}_hip_abd")))
+        rot[:, _IDX[f"knee_{s}"]] = _R(X, g(f"{s}_knee"))
+        rot[:, _IDX[f"ankle_{s}"]] = _R(X, -g(f"{s}_ankle"))
+        rot[:, _IDX[f"toe_{s}"]] = _R(X, -g(f"{s}_toe"))
+    return rot
+
+
+def _ease(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _keyframes(t: np.ndarray, times: list[float], keys: list[dict[str, float]]) -> dict[str, np.ndarray]:
+    """Smooth-step interpolation of DOF key poses (missing DOFs take their neutral value)."""
+    names = sorted({k for key in keys for k in key})
+    out: dict[str, np.ndarray] = {}
+    for name in names:
+        base = name[2:] if name[:2] in ("l_", "r_") else name
+        vals = np.array([key.get(name, NEUTRAL.get(base, 0.0)) for key in keys])
+        seg = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+        u = _ease((t - np.asarray(times)[seg]) / (np.asarray(times)[seg + 1] - np.asarray(times)[seg]))
+        out[name] = vals[seg] + (vals[seg + 1] - vals[seg]) * u
+    return out
+
+
+def _both(d: dict[str, np.ndarray], key: str, left: np.ndarray, right: np.ndarray | None = None) -> None:
+    d[f"l_{key}"] = left
+    d[f"r_{key}"] = left if right is None else right
+
+
+def _walk(t: np.ndarray) -> dict[str, np.ndarray]:
+    ph = 2 * np.pi * t / 1.0
+    d: dict[str, np.ndarray] = {}
+    for s, sign in (("l", 1.0), ("r", -1.0)):
+        p = ph + (0.0 if sign > 0 else np.pi)
+        d[f"{s}_hip_flex"] = 4 + 24 * np.sin(p)
+        d[f"{s}_knee"] = 5 + 55 * np.maximum(0.0, np.cos(p)) ** 2
+        d[f"{s}_ankle"] = 6 * np.sin(p)
+        d[f"{s}_shoulder_flex"] = -22 * np.sin(p)
+        d[f"{s}_elbow"] = 18 + 14 * np.maximum(0.0, -np.sin(p))
+    d["spine_twist"] = 5 * np.sin(ph)
+    d["root_yaw"] = -4 * np.sin(ph)
+    d["root_roll"] = 2 * np.sin(ph)
+    d["chest_flex"] = np.full_like(t, 3.0)
+    d["root_z"] = 0.012 * np.cos(2 * ph)
+    return d
+
+
+def _run(t: np.ndarray) -> dict[str, np.ndarray]:
+    ph = 2 * np.pi * t / 0.7
+    d: dict[str, np.ndarray] = {}
+    for s, sign in (("l", 1.0), ("r", -1.0)):
+        p = ph + (0.0 if sign > 0 else np.pi)
+        d[f"{s}_hip_flex"] = 18 + 40 * np.sin(p)
+        d[f"{s}_knee"] = 15 + 95 * np.maximum(0.0, np.cos(p)) ** 2
+        d[f"{s}_ankle"] = 12 * np.sin(p)
+        d[f"{s}_shoulder_flex"] = 8 - 45 * np.sin(p)
+        d[f"{s}_shoulder_elev"] = np.full_like(t, 18.0)
+        d[f"{s}_elbow"] = 85 + 15 * np.sin(p)
+    d["spine_flex"] = np.full_like(t, 8.0)
+    d["chest_twist"] = 8 * np.sin(ph)
+    d["root_yaw"] = -5 * np.sin(ph)
+    d["root_z"] = 0.05 * np.abs(np.sin(ph))
+    return d
+
+
+def _jumping_jacks(t: np.ndarray) -> dict[str, np.ndarray]:
+    ph = 2 * np.pi * t / 1.0
+    u = 0.5 * (1 - np.cos(ph))
+    d: dict[str, np.ndarray] = {}
+    _both(d, "shoulder_elev", ARM_REST_ELEVATION + 150 * u)
+    _both(d, "elbow", 10 + 15 * u)
+    _both(d, "hip_abd", 1 + 18 * u)
+    _both(d, "knee", 5 + 20 * np.abs(np.sin(ph)))
+    _both(d, "hip_flex", 3 + 10 * np.abs(np.sin(ph)))
+    d["root_z"] = 0.07 * np.abs(np.sin(ph))
+    return d
+
+
+def _squat(t: np.ndarray) -> dict[str, np.ndarray]:
+    u = 0.5 * (1 - np.cos(2 * np.pi * t / 1.6))
+    d: dict[str, np.ndarray] = {}
+    _both(d, "hip_flex", 100 * u)
+    _both(d, "knee", 2 + 120 * u)
+    _both(d, "ankle", 22 * u)
+    _both(d, "hip_abd", 4 + 8 * u)
+    _both(d, "shoulder_flex", 85 * u)
+    _both(d, "shoulder_elev", ARM_REST_ELEVATION - 6 * u)
+    _both(d, "elbow", 10 + 10 * u)
+    d["spine_flex"] = 22 * u
+    d["chest_flex"] = 10 * u
+    d["neck_flex"] = -15 * u
+    return d
+
+
+def _wave(t: np.ndarray) -> dict[str, np.ndarray]:
+    up = _ease(t / 0.6) * (1 - _ease((t - 2.4) / 0.6))
+    osc = np.sin(2 * np.pi * 1.6 * (t - 0.6)) * _ease((t - 0.5) / 0.3) * (1 - _ease((t - 2.2) / 0.3))
+    d: dict[str, np.ndarray] = {
+        "r_shoulder_elev": ARM_REST_ELEVATION + 110 * up,
+        "r_shoulder_flex": 25 * up,
+        "r_elbow": 10 + 60 * up + 25 * osc * up,
+        "r_wrist": 20 * osc * up,
+        "r_clav_up": 12 * up,
+        "l_shoulder_flex": 10 * up,
+        "l_elbow": 10 + 30 * up,
+        "chest_side": 6 * up,
+        "neck_twist": -15 * up,
+        "head_flex": -8 * up,
+    }
+    return d
+
+
+_STRETCH_TIMES = [0.0, 0.7, 1.4, 2.1, 2.8, 3.4, 4.0]
+_STRETCH_KEYS: list[dict[str, float]] = [
+    {},
+    {"l_shoulder_elev": 170, "r_shoulder_elev": 170, "spine_flex": -8, "chest_flex": -6, "l_elbow": 5, "r_elbow": 5,
+     "neck_flex": -15, "l_clav_up": 15, "r_clav_up": 15},
+    {"l_shoulder_elev": 165, "r_shoulder_elev": 170, "spine_side": -22, "chest_side": -15, "neck_side": -10,
+     "l_elbow": 10, "r_elbow": 5, "l_hip_abd": 8, "r_hip_abd": 4},
+    {"spine_flex": 35, "chest_flex": 25, "l_hip_flex": 60, "r_hip_flex": 60, "l_shoulder_flex": 95,
+     "r_shoulder_flex": 95, "l_shoulder_elev": 8, "r_shoulder_elev": 8, "neck_flex": 20, "l_knee": 8, "r_knee": 8},
+    {"spine_twist": 25, "chest_twist": 20, "l_shoulder_elev": 90, "r_shoulder_elev": 90, "l_shoulder_horiz": 80,
+     "r_shoulder_horiz": 80, "l_elbow": 35, "r_elbow": 25, "neck_twist": 20},
+    {"l_hip_flex": 95, "l_knee": 100, "l_ankle": -10, "r_knee": 8, "l_shoulder_elev": 60, "r_shoulder_elev": 60,
+     "l_elbow": 60, "r_elbow": 60, "l_shoulder_flex": 30, "r_shoulder_flex": 30, "spine_flex": 10},
+    {},
+]
+
+
+def _stretch(t: np.ndarray) -> dict[str, np.ndarray]:
+    return _keyframes(t, _STRETCH_TIMES, _STRETCH_KEYS)
+
+
+MOTIONS: dict[str, tuple[float, Callable[[np.ndarray], dict[str, np.ndarray]]]] = {
+    "walk": (2.0, _walk),
+    "run": (1.4, _run),
+    "jumping_jacks": (2.0, _jumping_jacks),
+    "squat": (3.2, _squat),
+    "wave": (3.0, _wave),
+    "stretch": (4.0, _stretch),
+}
+
+
+def _ground(rot: np.ndarray, root_z: np.ndarray, parents: np.ndarray, bind_local: np.ndarray) -> np.ndarray:
+    """Root translations ``(n, 3)`` keeping the feet planted (see the module docstring)."""
+    n = rot.shape[0]
+    local = np.tile(bind_local, (n, 1, 1, 1))
+    local[..., :3, :3] = rot
+    world = forward_kinematics(parents, local)
+    bind_world = forward_kinematics(parents, bind_local[None])[0]
+    feet = [_IDX[f"{j}_{s}"] for j in ("ankle", "toe") for s in _SIDE]
+    dz = (world[:, feet, 2, 3] - bind_world[feet, 2, 3]).min(axis=1)
+    ankles = [_IDX["ankle_l"], _IDX["ankle_r"]]
+    dxy = world[:, ankles][..., :2, 3].mean(axis=1) - bind_world[ankles][..., :2, 3].mean(axis=0)
+    trans = np.tile(bind_local[0, :3, 3], (n, 1))
+    trans[:, :2] -= dxy
+    trans[:, 2] += root_z - dz
+    return trans
+
+
+def make_clip(name: str, bind_local: np.ndarray, parents: np.ndarray, fps: float = FPS) -> Clip:
+    """One of the built-in motions (``CLIP_NAMES``) sampled at ``fps``."""
+    check(name in MOTIONS, f"unknown built-in motion {name!r}; available: {list(MOTIONS)}")
+    duration, fn = MOTIONS[name]
+    t = np.arange(int(round(duration * fps)) + 1) / fps
+    d = fn(t)
+    n = t.size
+    rot = _dofs_to_rotations(d, n)
+    trans = np.tile(bind_local[:, :3, 3], (n, 1, 1))
+    trans[:, 0] = _ground(rot, _dof(d, "root_z", n), parents, bind_local)
+    return Clip.from_rotations(name, fps, rot, trans)
+
+
+@functools.lru_cache(maxsize=4)
+def _build(density: float) -> tuple[np.ndarray, ...]:
+    table = _joint_table()
+    parents = np.array([-1 if p is None else _IDX[p] for _, p, _ in table], dtype=np.int64)
+    pos = np.array([p for _, _, p in table])
+    verts, faces, normals = _mesh(density)
+    dz = -verts[:, 2].min()  # stand on z = 0
+    verts[:, 2] += dz
+    pos[:, 2] += dz
+    bw_rot = _bind_world_rotations()
+    bind_world = np.tile(np.eye(4), (len(table), 1, 1))
+    bind_world[:, :3, :3] = bw_rot
+    bind_world[:, :3, 3] = pos
+    bind_local = bind_world.copy()
+    for j, p in enumerate(parents):
+        if p >= 0:
+            bind_local[j] = np.linalg.solve(bind_world[p], bind_world[j])
+    inverse_bind = np.linalg.inv(bind_world)
+    joints, weights = _skin_weights(verts - np.array([0, 0, dz]), faces, parents)
+    return parents, bind_local, inverse_bind, verts.astype(np.float32), normals.astype(np.float32), faces, joints, \
+        weights
+
+
+def make_character(density: float = 1.0, fps: float = FPS) -> Character:
+    """The built-in humanoid (deterministic) with the clips ``CLIP_NAMES`` sampled at ``fps``.
+
+    ``density`` scales the vertex count (1.0 -> ~11-12k vertices, 0.25 -> ~3k). The geometry is
+    cached per density; every call returns fresh arrays.
+    """
+    check(bool(np.isfinite(density)) and 0.02 <= density <= 16, f"density must be in [0.02, 16], got {density}")
+    parents, bind_local, inverse_bind, verts, normals, faces, joints, weights = (
+        a.copy() for a in _build(float(density)))
+    clips = {n: make_clip(n, bind_local, parents, fps) for n in CLIP_NAMES}
+    return Character(NAME, list(JOINT_NAMES), parents, bind_local, inverse_bind, verts, normals, faces, joints,
+                     weights, clips, np.radians(JOINT_LIMITS_DEG))
