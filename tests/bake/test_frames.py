@@ -1,0 +1,140 @@
+"""Local vertex frames: mean-shift clusters, PCA axes, orthonormality, rigid equivariance, coherence."""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from prt_torch.bake.frames import cluster_axes, cluster_bones, cluster_vertices, local_frames
+from prt_torch.errors import PrtError
+
+
+def two_bone_arm() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An open tube of radius 0.4 along x from 0 to 4 (41 rings of 24 vertices), bone 0 on x < 2 and
+    bone 1 on x > 2, with a linear weight blend over 1.5..2.5.
+
+    Returns ``(vertices (V, 3), normals (V, 3), dense weights (V, 2))``.
+    """
+    x, a = np.meshgrid(np.linspace(0.0, 4.0, 41), np.linspace(0, 2 * math.pi, 24, endpoint=False), indexing="ij")
+    n = np.stack([np.zeros_like(a), np.cos(a), np.sin(a)], axis=-1).reshape(-1, 3)
+    v = np.c_[x.reshape(-1), 0.4 * n[:, 1:]]
+    w1 = np.clip((v[:, 0] - 1.5) / 1.0, 0.0, 1.0)
+    return v, n, np.stack([1 - w1, w1], axis=1)
+
+
+def test_clusters_follow_bones_and_axes_follow_the_limb() -> None:
+    v, _, w = two_bone_arm()
+    labels = cluster_vertices(w, bandwidth=0.5, min_size=8)
+    assert labels.dtype == np.int32 and labels.shape == (len(v),)
+    assert 2 <= labels.max() + 1 <= 4
+    # pure single-bone vertices of different bones never share a cluster
+    pure0, pure1 = w[:, 0] == 1.0, w[:, 1] == 1.0
+    assert not set(labels[pure0]) & set(labels[pure1])
+    bones = cluster_bones(w, labels)
+    assert bones[labels[pure0][0]] == 0 and bones[labels[pure1][0]] == 1
+    axes = cluster_axes(v, labels)
+    np.testing.assert_allclose(np.linalg.norm(axes, axis=1), 1.0, atol=1e-6)
+    # independent reference: numpy SVD of each cluster's centred vertices
+    checked = 0
+    for k in range(labels.max() + 1):
+        x = v[labels == k] - v[labels == k].mean(axis=0)
+        _, sv, vt = np.linalg.svd(x, full_matrices=False)
+        if sv[0] > 1.1 * sv[1]:  # a well-defined principal direction (the short blend ring may not have one)
+            assert abs(float(vt[0] @ axes[k])) == pytest.approx(1.0, abs=1e-5)
+            checked += 1
+    assert checked >= 2
+    for pure in (pure0, pure1):  # the single-bone parts are long along x
+        assert abs(axes[labels[pure][0], 0]) > 0.9
+
+
+def test_cluster_count_is_tamed() -> None:
+    rng = np.random.default_rng(0)
+    w = rng.dirichlet(np.full(12, 0.2), size=300)
+    labels = cluster_vertices(w, bandwidth=0.05, max_clusters=5, min_size=20)
+    counts = np.bincount(labels)
+    assert len(counts) <= 5 and counts.min() >= 20
+    np.testing.assert_array_equal(labels, cluster_vertices(w, bandwidth=0.05, max_clusters=5, min_size=20))
+
+
+def _posed_arm(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Bend bone 1 about the elbow (x=2) by ``angles`` (radians, about z); LBS of normals."""
+    v, n, w = two_bone_arm()
+    F = len(angles)
+    rot = np.zeros((F, 2, 3, 3))
+    rot[:, 0] = np.eye(3)
+    rot[:, 1] = Rotation.from_euler("z", angles[:, None]).as_matrix()
+    mats = np.zeros((F, 2, 4, 4))
+    mats[:, :, :3, :3] = rot
+    mats[:, :, 3, 3] = 1
+    pivot = np.array([2.0, 0, 0])
+    mats[:, 1, :3, 3] = pivot - rot[:, 1] @ pivot
+    blended = np.einsum("vj,fjab->fvab", w, mats)
+    nrm = np.einsum("fvab,vb->fva", blended[..., :3, :3], n)
+    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    return v, nrm, w, mats
+
+
+def test_frames_orthonormal_right_handed_and_normal_row() -> None:
+    v, nrm, w, mats = _posed_arm(np.linspace(0, 1.2, 5))
+    labels = cluster_vertices(w, bandwidth=0.5)
+    fr = local_frames(nrm, mats, labels, cluster_axes(v, labels), cluster_bones(w, labels))
+    assert fr.shape == (5, len(v), 3, 3) and fr.dtype == np.float32
+    eye = np.einsum("...ij,...kj->...ik", fr.astype(np.float64), fr.astype(np.float64))
+    np.testing.assert_allclose(eye, np.broadcast_to(np.eye(3), eye.shape), atol=1e-5)
+    np.testing.assert_allclose(np.linalg.det(fr.astype(np.float64)), 1.0, atol=1e-5)
+    np.testing.assert_allclose(fr[..., 2, :], nrm, atol=1e-6)
+
+
+def test_frames_rotate_with_a_rigid_motion() -> None:
+    """Rotating the whole posed mesh by Q (normals and all bones) maps every frame F to F Q^T."""
+    v, nrm, w, mats = _posed_arm(np.array([0.0, 0.7]))
+    labels = cluster_vertices(w, bandwidth=0.5)
+    axes, bones = cluster_axes(v, labels), cluster_bones(w, labels)
+    q = Rotation.from_euler("xyz", [0.3, -1.1, 2.0]).as_matrix()
+    fr = local_frames(nrm, mats, labels, axes, bones).astype(np.float64)
+    rot_q = np.einsum("ab,fjbc->fjac", q, mats[..., :3, :3])
+    fr_q = local_frames(nrm @ q.T, rot_q, labels, axes, bones).astype(np.float64)
+    np.testing.assert_allclose(fr_q, fr @ q.T, atol=2e-5)
+
+
+def test_frames_are_temporally_coherent() -> None:
+    """Bending the elbow by 2 degrees per frame turns no tangent by more than 10 degrees between frames.
+
+    Stated bound: a tangent turns at most by (bone rotation + normal rotation) amplified by
+    1 / FALLBACK_BELOW near the fallback zone; for smooth 2-degree steps we require <= 10 degrees.
+    """
+    angles = np.deg2rad(np.arange(0, 90, 2.0))
+    v, nrm, w, mats = _posed_arm(angles)
+    labels = cluster_vertices(w, bandwidth=0.5)
+    fr = local_frames(nrm, mats, labels, cluster_axes(v, labels), cluster_bones(w, labels)).astype(np.float64)
+    cos = np.sum(fr[1:, :, 0] * fr[:-1, :, 0], axis=-1)
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() <= 10.0
+
+
+def test_single_frame_and_bad_inputs() -> None:
+    v, nrm, w, mats = _posed_arm(np.array([0.3]))
+    labels = cluster_vertices(w, bandwidth=0.5)
+    axes, bones = cluster_axes(v, labels), cluster_bones(w, labels)
+    one = local_frames(nrm[0], mats[0], labels, axes, bones)
+    np.testing.assert_array_equal(one, local_frames(nrm, mats, labels, axes, bones)[0])
+    bad = nrm[0].copy()
+    bad[3] = np.nan
+    with pytest.raises(PrtError, match="NaN"):
+        local_frames(bad, mats[0], labels, axes, bones)
+    with pytest.raises(PrtError, match="labels"):
+        local_frames(nrm[0], mats[0], labels[:-1], axes, bones)
+    with pytest.raises(PrtError, match="skin"):
+        local_frames(nrm[0], mats[0, :, :2, :2], labels, axes, bones)
+    with pytest.raises(PrtError, match="weights"):
+        cluster_vertices(np.full((4, 2), np.nan))
+
+
+def test_frames_module_does_not_import_torch() -> None:
+    import subprocess
+
+    code = "import sys, prt_torch.bake.frames; assert 'torch' not in sys.modules"
+    subprocess.run([sys.executable, "-c", code], check=True)
