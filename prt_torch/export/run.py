@@ -80,6 +80,25 @@ def heldout_inputs(run_dir: Path, n_max: int = 8) -> dict[str, np.ndarray]:
             "rows": rows}
 
 
+def write_frame_data(run_dir: Path) -> Path:
+    """Copy the dataset's ``cluster (V,)``, ``cluster_axis (Kc, 3)``, ``cluster_bone (Kc,)`` to
+    ``run_dir/frames.npz`` (atomically): the player rebuilds the local vertex frames from them."""
+    import zarr
+
+    from prt_torch.io import atomic_path
+
+    g = zarr.open_group(str(run_dir / "dataset.zarr"), mode="r")
+    missing = [k for k in ("cluster", "cluster_axis", "cluster_bone") if k not in g]
+    check(not missing, f"{run_dir / 'dataset.zarr'}: missing frame data {missing} (re-bake the dataset)")
+    out = run_dir / "frames.npz"
+    with atomic_path(out) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, cluster=np.asarray(g["cluster"][:], dtype=np.int32),
+                     cluster_axis=np.asarray(g["cluster_axis"][:], dtype=np.float32),
+                     cluster_bone=np.asarray(g["cluster_bone"][:], dtype=np.int32))
+    return out
+
+
 def _view_dirs(positions: np.ndarray, eye: np.ndarray) -> np.ndarray:
     d = eye[None, None, :] - positions
     return (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
@@ -143,6 +162,7 @@ def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: 
           f"model takes {model.n_features} pose features but the character gives {character.feature_width}")
     order, V, A, C = model.order, model.n_vertices, model.n_features, model.n_coeffs
     held = heldout_inputs(run_dir)
+    write_frame_data(run_dir)
     check(held["frames"].shape[1] == V, f"dataset has {held['frames'].shape[1]} vertices, the model {V}")
     rpos = build_rpos(brdfs, order, n_terms)
     rpo_files = {}
@@ -196,7 +216,7 @@ def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: 
         "format": FORMAT, "conventions": CONVENTIONS, "sh_order": order, "n_coeffs": C, "n_vertices": V,
         "n_features": A, "n_terms": n_terms, "model_kind": model.kind, "model_sha256": model_hash, "opset": opset,
         "exporter": exporter, "character_hash": character.content_hash(), "character_name": character.name,
-        "character_file": "character.npz",
+        "character_file": "character.npz", "frames_file": "frames.npz",
         "files": {"visibility": VISIBILITY_FILE, "shading": SHADING_FILE, "fused": FUSED_FILE},
         "inputs": {"visibility": ["pose"], "shading": list(SHADING_INPUTS), "fused": list(FUSED_INPUTS)},
         "brdfs": sorted(rpo_files), "rpo_files": rpo_files, "parity": parity,

@@ -1,0 +1,1 @@
+"""``python -m export RUN``: thin entry point of the export job (see :mod:`prt_torch.commands.export`)."""

@@ -1,0 +1,42 @@
+"""``prt export RUN``: ONNX graphs (visibility, shading, fused) + RPO files + export.json, checked
+against torch on held-out poses."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "Export a trained run to ONNX (visibility, RPO shading, fused graphs) with a parity check vs torch."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", help="run directory (runs/NAME) or a config YAML whose run is exported")
+    parser.add_argument("--kind", default=None, choices=["linear", "quadratic", "mlp"],
+                        help="model kind (default: the run's default model)")
+    parser.add_argument("--brdfs", default=None, help="comma-separated named BRDFs to export as RPOs")
+    parser.add_argument("--terms", type=int, default=8, help="BRDF terms k of the shading graph (default 8)")
+    parser.add_argument("--opset", type=int, default=17, help="ONNX opset (>= 17)")
+    parser.add_argument("--exporter", default="torchscript", choices=["torchscript", "dynamo"])
+    parser.add_argument("--force", action="store_true", help="re-export even if up to date")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from prt_torch.export.run import DEFAULT_BRDFS, export_run
+
+    console = Console(stderr=True)
+    run_dir = Path(args.run)
+    if run_dir.suffix in (".yaml", ".yml"):
+        from prt_torch.config import load_config
+
+        run_dir = load_config(run_dir).out_dir
+    brdfs = tuple(b.strip() for b in args.brdfs.split(",") if b.strip()) if args.brdfs else DEFAULT_BRDFS
+    with console.status(f"exporting {run_dir} ..."):
+        meta = export_run(run_dir, kind=args.kind, brdfs=brdfs, n_terms=args.terms, opset=args.opset,
+                          exporter=args.exporter, force=args.force, console=console)
+    par = ", ".join(f"{k} {v['rel_error']:.1e}" for k, v in meta["parity"].items())
+    console.print(f"exported {run_dir}: V={meta['n_vertices']} order={meta['sh_order']} "
+                  f"BRDFs={','.join(meta['brdfs'])}; parity vs torch (rel.): {par}")
+    return 0

@@ -1,0 +1,61 @@
+"""``prt play RUN --clip NAME --env FILE --brdf NAME [--out video.mp4]``: onnxruntime playback."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "Play a clip of an exported run with onnxruntime: offscreen MP4/PNG frames or a window; frame timings."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", help="exported run directory (runs/NAME)")
+    parser.add_argument("--clip", required=True, help="clip name of the character (e.g. walk)")
+    parser.add_argument("--env", default=None, help="HDR environment map (.hdr/.exr/.pfm); default: procedural sky")
+    parser.add_argument("--brdf", default=None, help="BRDF name from the run's RPO catalogue, or an RPO .npz")
+    parser.add_argument("--out", default=None, help="write an MP4 here (offscreen)")
+    parser.add_argument("--png", default=None, help="write PNG frames into this directory (offscreen)")
+    parser.add_argument("--frames", type=int, default=None, help="play at most this many frames")
+    parser.add_argument("--fps", type=float, default=None, help="resample the clip to this rate")
+    parser.add_argument("--graph", default="fused", choices=["fused", "split"])
+    parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    parser.add_argument("--size", default="480x640", help="image size HxW (default 480x640)")
+    parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
+                                                        "RUN/play_timings.json)")
+    parser.add_argument("--light-angle", type=float, default=0.0, help="rotate the lighting about z (degrees)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import numpy as np
+    from rich.console import Console
+
+    from prt_torch.errors import PrtError
+    from prt_torch.player import Player
+    from prt_torch.player.render import has_display
+
+    console = Console(stderr=True)
+    try:
+        h, w = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        raise PrtError(f"bad --size {args.size!r}: expected HxW, e.g. 480x640") from None
+    show = args.out is None and args.png is None
+    if show and not has_display():
+        raise PrtError("no display: pass --out video.mp4 or --png DIR to render offscreen")
+    timings = args.timings or (str(Path(args.out).with_suffix(".timings.json")) if args.out
+                               else str(Path(args.run) / "play_timings.json"))
+    player = Player(args.run, env=args.env, brdf=args.brdf, graph=args.graph, threads=args.threads,
+                    window_size=(h, w))
+    if args.light_angle:
+        player.rotate_light(np.radians(args.light_angle))
+    try:
+        res = player.play(args.clip, out=args.out, png_dir=args.png, frames=args.frames, fps=args.fps,
+                          timings=timings, show=show)
+    finally:
+        player.close()
+    s = res.summary
+    console.print(f"{res.frames} frames: compute path {s.get('compute_fps', 0):.0f} frames/s "
+                  f"({s.get('compute_ms_median', 0):.2f} ms), with rendering {s.get('total_fps', 0):.1f} frames/s")
+    for p in res.outputs:
+        console.print(f"wrote {p}")
+    return 0

@@ -1,0 +1,348 @@
+"""The run-time player: clip -> numpy FK/LBS/frames -> ONNX Runtime visibility + RPO shading ->
+colours -> pyvista (offscreen PNG/MP4 or a window). numpy + onnxruntime + pyvista only: importing
+or running it never imports torch or the training code.
+
+Per frame (``Player.compute``)::
+
+    local (B, J, 4, 4) --FK--> skin (B, J, 4, 4) --LBS--> positions, normals (B, V, 3)
+        --cluster axes--> frames (B, V, 3, 3);  pose features (B, A)
+    [fused]  ORT fused.onnx(pose, frames, view dirs, lobes, RPO) -> radiance (B, V, 3)
+    [split]  ORT visibility.onnx(pose) -> (B, V, C);  ORT shading.onnx(...) -> radiance
+    radiance --exposure, gamma--> uint8 colours
+
+Embedding::
+
+    p = Player("runs/demo", env="uffizi.hdr", brdf="phong")
+    result = p.play("walk", out="walk.mp4")           # or png_dir=..., frames=..., show=True
+    img = p.render_frame(p.compute(p.clip_locals("walk")[:1]))
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prt_torch.errors import PrtError, check
+from prt_torch.player.bundle import RPOTensors, RunBundle
+from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
+from prt_torch.player.timing import FrameTimer
+from prt_torch.player.tonemap import auto_exposure, to_colors
+
+GRAPH_MODES = ("fused", "split")
+
+
+@dataclass
+class FrameState:
+    """One batch of posed characters: ``positions, normals (B, V, 3)``, ``frames (B, V, 3, 3)``,
+    ``features (B, A)``, ``view_dirs (B, V, 3)``, all float32; ``radiance (B, V, 3)`` once shaded."""
+
+    positions: np.ndarray
+    normals: np.ndarray
+    frames: np.ndarray
+    features: np.ndarray
+    view_dirs: np.ndarray
+    radiance: np.ndarray | None = None
+
+
+@dataclass
+class PlayResult:
+    """What :meth:`Player.play` did: frames, timing summary, written files."""
+
+    frames: int
+    summary: dict[str, Any]
+    outputs: list[Path]
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+
+
+class Player:
+    """Plays clips of an exported run with ONNX Runtime (see the module docstring).
+
+    Args:
+        run_dir: exported run directory.
+        env: HDR environment map path, or ``None`` for the procedural sun + sky.
+        brdf: BRDF name of the run's RPO catalogue (or an RPO ``.npz``); ``None``: the first one.
+        graph: ``"fused"`` (one ORT call per frame) or ``"split"`` (visibility then shading).
+        threads: onnxruntime intra-op threads.
+        window_size: render size in pixels.
+        exposure: fixed exposure; ``None`` picks one from the first frame.
+        n_lobes: ZH lobes fitted to the lighting.
+    """
+
+    def __init__(self, run_dir: str | os.PathLike[str], env: str | os.PathLike[str] | None = None,
+                 brdf: str | None = None, graph: str = "fused", threads: int = 2,
+                 window_size: tuple[int, int] = (480, 640), exposure: float | None = None, n_lobes: int = 3) -> None:
+        check(graph in GRAPH_MODES, f"unknown graph mode {graph!r}: expected one of {GRAPH_MODES}")
+        self.bundle = RunBundle(run_dir, threads=threads)
+        self.graph = graph
+        self.character = self.bundle.character
+        self.order = self.bundle.order
+        self.window_size = window_size
+        self.lighting: Lighting = load_lighting(env, self.order, n_lobes)
+        self.light_angle = 0.0
+        self._lobe_dirs = self.lighting.dirs
+        self.rpo: RPOTensors = self.bundle.rpo(brdf if brdf is not None else self.bundle.brdf_names[0])
+        self.exposure = exposure
+        self.unshadowed = hemisphere_visibility(self.order)
+        ch = self.character
+        self._dense_w = ch.dense_weights
+        rest = ch.rest_vertices
+        lo, hi = rest.min(0), rest.max(0)
+        self.center = (0.5 * (lo + hi)).astype(np.float32)
+        self.radius = float(np.linalg.norm(hi - lo))
+        self.camera_azimuth = 0.0
+        self.camera_elevation = 0.2
+        self._renderer: Any = None
+
+    # -- settings ------------------------------------------------------------------------------
+    @property
+    def eye(self) -> np.ndarray:
+        """Camera position (world): orbiting the rest-pose centre, in front (-y) at azimuth 0."""
+        a, e = self.camera_azimuth, self.camera_elevation
+        d = np.array([np.sin(a) * np.cos(e), -np.cos(a) * np.cos(e), np.sin(e)])
+        return (self.center + 1.5 * self.radius * d).astype(np.float32)
+
+    def set_brdf(self, name: str) -> None:
+        """Swap the material (an RPO of the run's catalogue, or an RPO file)."""
+        self.rpo = self.bundle.rpo(name)
+
+    def next_brdf(self) -> str:
+        names = self.bundle.brdf_names
+        i = (names.index(self.rpo.name) + 1) % len(names) if self.rpo.name in names else 0
+        self.set_brdf(names[i])
+        return names[i]
+
+    def rotate_light(self, angle: float) -> None:
+        """Rotate the lighting about the world up axis by ``angle`` radians (cumulative)."""
+        self.light_angle += angle
+        c, s = np.cos(self.light_angle), np.sin(self.light_angle)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float32)
+        self._lobe_dirs = np.ascontiguousarray(self.lighting.dirs @ R.T)
+
+    def orbit(self, d_azimuth: float, d_elevation: float = 0.0) -> None:
+        self.camera_azimuth += d_azimuth
+        self.camera_elevation = float(np.clip(self.camera_elevation + d_elevation, -1.2, 1.2))
+
+    # -- per-frame path ------------------------------------------------------------------------
+    def clip_locals(self, clip: str, fps: float | None = None) -> np.ndarray:
+        """``(F, J, 4, 4)`` local joint transforms of a clip of the character."""
+        c = self.character.clip(clip)
+        if fps is not None and fps != c.fps:
+            c = c.resample(fps)
+        return np.asarray(c.local)
+
+    def pose(self, local: np.ndarray) -> FrameState:
+        """numpy FK, LBS, local frames, pose features and view directions for ``(B, J, 4, 4)`` locals."""
+        from prt_torch.bake.frames import local_frames
+        from prt_torch.rig.features import pose_features
+        from prt_torch.rig.skeleton import forward_kinematics
+        from prt_torch.rig.skinning import skin
+
+        ch = self.character
+        local = np.asarray(local, dtype=np.float64)
+        check(local.ndim == 4 and local.shape[1:] == (ch.num_joints, 4, 4),
+              f"local joint transforms must be (B, {ch.num_joints}, 4, 4), got {local.shape}")
+        check(bool(np.isfinite(local).all()), "local joint transforms contain NaN or Inf")
+        world = forward_kinematics(ch.parents, local)
+        skin_mats = world @ ch.inverse_bind[None]
+        pos, nrm = skin(skin_mats, self._dense_w, ch.rest_vertices, ch.rest_normals)
+        frames = local_frames(nrm, skin_mats, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone)
+        feats = pose_features(local, ch.bind_local, ch.parents)
+        view = _unit(self.eye[None, None, :] - pos).astype(np.float32)
+        return FrameState(pos.astype(np.float32, copy=False), nrm, np.ascontiguousarray(frames, dtype=np.float32),
+                          np.ascontiguousarray(feats, dtype=np.float32), view)
+
+    def _shading_feeds(self, state: FrameState) -> dict[str, np.ndarray]:
+        return {"frames": state.frames, "view_dirs": state.view_dirs, "lobe_dirs": self._lobe_dirs,
+                "lobe_coeffs": self.lighting.coeffs, "rpo_M": self.rpo.M, "rpo_w": self.rpo.w,
+                "rpo_tint": self.rpo.tint}
+
+    def visibility(self, features: np.ndarray, checked: bool = True) -> np.ndarray:
+        """``(B, A)`` pose features -> ``(B, V, C)`` local visibility (ORT)."""
+        g = self.bundle.graphs["visibility"]
+        if checked:
+            return g.run({"pose": features})["visibility"]
+        return g.run_unchecked({"pose": features})[0]
+
+    def shade(self, state: FrameState, visibility: np.ndarray | None = None, checked: bool = True,
+              timer: FrameTimer | None = None) -> np.ndarray:
+        """Radiance ``(B, V, 3)``: from the model (``visibility=None``) or a given ``(B, V, C)`` visibility."""
+        feeds = self._shading_feeds(state)
+        if visibility is None and self.graph == "fused":
+            g = self.bundle.graphs["fused"]
+            feeds["pose"] = state.features
+            t0 = time.perf_counter()
+            out = g.run(feeds)["radiance"] if checked else g.run_unchecked(feeds)[0]
+            if timer is not None:
+                timer.add("fused", time.perf_counter() - t0)
+            return out
+        t0 = time.perf_counter()
+        if visibility is None:
+            visibility = self.visibility(state.features, checked)
+        t1 = time.perf_counter()
+        g = self.bundle.graphs["shading"]
+        feeds["visibility"] = np.ascontiguousarray(np.broadcast_to(
+            visibility, state.frames.shape[:2] + (self.order ** 2,)), dtype=np.float32)
+        out = g.run(feeds)["radiance"] if checked else g.run_unchecked(feeds)[0]
+        if timer is not None:
+            timer.add("visibility", t1 - t0)
+            timer.add("shading", time.perf_counter() - t1)
+        return out
+
+    def compute(self, local: np.ndarray, timer: FrameTimer | None = None) -> FrameState:
+        """The whole per-frame compute path for ``(B, J, 4, 4)`` locals; returns the shaded state."""
+        t0 = time.perf_counter()
+        state = self.pose(local)
+        if timer is not None:
+            timer.add("pose", time.perf_counter() - t0)
+        state.radiance = self.shade(state, checked=False, timer=timer)
+        return state
+
+    def colors(self, radiance: np.ndarray) -> np.ndarray:
+        """uint8 colours; fixes the exposure from the first call when it was not given."""
+        if self.exposure is None:
+            self.exposure = auto_exposure(radiance)
+        return to_colors(radiance, self.exposure)
+
+    # -- rendering -----------------------------------------------------------------------------
+    def renderer(self, off_screen: bool = True):  # -> MeshRenderer
+        from prt_torch.player.render import MeshRenderer
+
+        if self._renderer is None or self._renderer.off_screen != off_screen:
+            if self._renderer is not None:
+                self._renderer.close()
+            self._renderer = MeshRenderer(self.character.rest_vertices, self.character.faces,
+                                          window_size=(self.window_size[1], self.window_size[0]),
+                                          off_screen=off_screen)
+        self._renderer.set_camera(self.eye, self.center)
+        return self._renderer
+
+    def render_frame(self, state: FrameState, index: int = 0, colors: np.ndarray | None = None) -> np.ndarray:
+        """Render character ``index`` of a shaded state to an ``(H, W, 3)`` uint8 image (offscreen)."""
+        check(state.radiance is not None or colors is not None, "render_frame needs a shaded state or colours")
+        col = colors if colors is not None else self.colors(state.radiance[index])
+        r = self.renderer(off_screen=True)
+        r.update(state.positions[index], col)
+        return r.render()
+
+    def play(self, clip: str, out: str | os.PathLike[str] | None = None, png_dir: str | os.PathLike[str] | None = None,
+             frames: int | None = None, fps: float | None = None, timings: str | os.PathLike[str] | None = None,
+             show: bool = False, progress: bool = True) -> PlayResult:
+        """Play ``clip``: offscreen into an MP4 (``out``) and/or PNG frames (``png_dir``), or in a window.
+
+        Args:
+            clip: clip name of the character.
+            out: MP4 path (written atomically), or ``None``.
+            png_dir: directory for ``frame_00000.png`` ..., or ``None``.
+            frames: play at most this many frames.
+            fps: resample the clip (and the video) to this rate.
+            timings: JSON file for per-frame step timings.
+            show: an interactive window (needs a display): keys ``l`` rotate light, ``b`` next BRDF,
+                ``Left``/``Right``/``Up``/``Down`` orbit the camera, ``q`` quit.
+        """
+        from prt_torch.player.render import has_display
+        from prt_torch.player.video import VideoWriter, write_png
+
+        locals_ = self.clip_locals(clip, fps)
+        n = len(locals_) if frames is None else max(0, min(int(frames), len(locals_)))
+        check(n > 0, f"clip {clip!r}: nothing to play (frames={frames})")
+        if show and not has_display():
+            raise PrtError("no display for an interactive window: pass --out video.mp4 or --png DIR instead")
+        rate = float(fps or self.character.clip(clip).fps)
+        timer = FrameTimer()
+        outputs: list[Path] = []
+        writer = VideoWriter(out, fps=rate) if out is not None else None
+        if png_dir is not None:
+            Path(png_dir).mkdir(parents=True, exist_ok=True)
+        render = writer is not None or png_dir is not None or show
+        renderer = self.renderer(off_screen=not show) if render else None
+        if show:
+            self._bind_keys(renderer)
+            renderer.plotter.show(interactive_update=True, auto_close=False)
+        prog = _progress(progress, n, f"playing {clip}")
+        try:
+            for i in range(n):
+                state = self.compute(locals_[i:i + 1], timer)
+                with timer.step("colors"):
+                    col = self.colors(state.radiance[0])
+                if renderer is not None:
+                    with timer.step("render"):
+                        renderer.set_camera(self.eye, self.center)
+                        renderer.update(state.positions[0], col)
+                        if show:
+                            renderer.plotter.update()
+                            img = None
+                        else:
+                            img = renderer.render()
+                    with timer.step("write"):
+                        if img is not None and writer is not None:
+                            writer.append(img)
+                        if img is not None and png_dir is not None:
+                            write_png(Path(png_dir) / f"frame_{i:05d}.png", img)
+                if prog is not None:
+                    prog.advance()
+        except BaseException:
+            if writer is not None:
+                writer.abort()
+            raise
+        finally:
+            if prog is not None:
+                prog.stop()
+        if writer is not None:
+            outputs.append(writer.close())
+        if png_dir is not None:
+            outputs.append(Path(png_dir))
+        summary = timer.summary()
+        if timings is not None:
+            timer.write_json(timings, extra={"clip": clip, "graph": self.graph, "brdf": self.rpo.name,
+                                             "lighting": self.lighting.source, "n_vertices": self.bundle.n_vertices,
+                                             "sh_order": self.order, "exposure": self.exposure})
+            outputs.append(Path(timings))
+        return PlayResult(n, summary, outputs)
+
+    def _bind_keys(self, renderer: Any) -> None:  # pragma: no cover - needs a display
+        pl = renderer.plotter
+        pl.add_key_event("l", lambda: self.rotate_light(np.radians(15)))
+        pl.add_key_event("b", lambda: self.next_brdf())
+        pl.add_key_event("Left", lambda: self.orbit(-np.radians(10)))
+        pl.add_key_event("Right", lambda: self.orbit(np.radians(10)))
+        pl.add_key_event("Up", lambda: self.orbit(0, np.radians(8)))
+        pl.add_key_event("Down", lambda: self.orbit(0, -np.radians(8)))
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+class _progress:
+    """A small rich progress bar with a live frames/s readout (or nothing when disabled)."""
+
+    def __new__(cls, enabled: bool, total: int, label: str):  # type: ignore[misc]
+        if not enabled:
+            return None
+        return super().__new__(cls)
+
+    def __init__(self, enabled: bool, total: int, label: str) -> None:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self._p = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                           TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(), transient=False)
+        self._t = self._p.add_task(label, total=total, fps=0.0)
+        self._t0 = time.perf_counter()
+        self._n = 0
+        self._p.start()
+
+    def advance(self) -> None:
+        self._n += 1
+        self._p.update(self._t, advance=1, fps=self._n / max(time.perf_counter() - self._t0, 1e-9))
+
+    def stop(self) -> None:
+        self._p.stop()
