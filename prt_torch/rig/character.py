@@ -108,6 +108,7 @@ class Character:
             check(bool(np.all(lim[..., 0] <= lim[..., 1])), "joint limits must have min <= max")
             self.joint_limits = lim
         self._dense_w: np.ndarray | None = None
+        self._dense_wt: np.ndarray | None = None
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -130,6 +131,7 @@ class Character:
         """``(V, J)`` float32 dense skin weights (cached)."""
         if self._dense_w is None:
             self._dense_w = dense_weights(self.joints, self.weights, self.num_joints)
+            self._dense_wt = np.ascontiguousarray(self._dense_w.T)
         return self._dense_w
 
     # -- posing --------------------------------------------------------------------------------
@@ -163,7 +165,7 @@ class Character:
         ``poses``: a :class:`Poses` or skin matrices ``(F, J, 4, 4)`` / ``(J, 4, 4)`` (then no F axis).
         """
         mats = poses.skin if isinstance(poses, Poses) else np.asarray(poses)
-        pos, nrm = skin(mats, self.dense_weights, self.rest_vertices, self.rest_normals)
+        pos, nrm = skin(mats, self.dense_weights, self.rest_vertices, self.rest_normals, self._dense_wt)
         assert nrm is not None
         return pos, nrm
 

@@ -10,9 +10,28 @@ exact for rotations and uniform scale).
 
 from __future__ import annotations
 
+import contextlib
+import functools
+from typing import Any
+
 import numpy as np
 
 from prt_torch.errors import check
+
+
+@functools.cache
+def _blas_controller() -> Any:
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # pragma: no cover - threadpoolctl ships with scikit-learn
+        return None
+    return ThreadpoolController()
+
+
+def _single_thread_blas() -> contextlib.AbstractContextManager[Any]:
+    """The skinning GEMM is tiny (12 x J x V): one BLAS thread is 2-20x faster than a contended pool."""
+    ctl = _blas_controller()
+    return contextlib.nullcontext() if ctl is None else ctl.limit(limits=1, user_api="blas")
 
 
 def check_skin_weights(joints: np.ndarray, weights: np.ndarray, num_joints: int, num_vertices: int | None = None,
@@ -48,11 +67,15 @@ def dense_weights(joints: np.ndarray, weights: np.ndarray, num_joints: int) -> n
 
 
 def skin(skin_mats: np.ndarray, dense_w: np.ndarray, rest_vertices: np.ndarray,
-         rest_normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+         rest_normals: np.ndarray | None = None, dense_w_t: np.ndarray | None = None
+         ) -> tuple[np.ndarray, np.ndarray | None]:
     """Skin a mesh: ``skin_mats (F, J, 4, 4)`` or ``(J, 4, 4)``, ``dense_w (V, J)``, ``rest_vertices (V, 3)``.
 
     Returns ``positions (F, V, 3)`` float32 and ``normals (F, V, 3)`` float32 unit (or ``None``
     without rest normals); with an unbatched ``(J, 4, 4)`` input the ``F`` axis is omitted.
+    ``dense_w_t``: optional precomputed C-contiguous ``dense_w.T`` (J, V) float32 (speed only).
+    The blended matrices are computed coefficient-major, ``(F, 12, V)``, so that every following
+    operation runs on contiguous length-V rows.
     """
     m = np.asarray(skin_mats)
     single = m.ndim == 3
@@ -61,16 +84,24 @@ def skin(skin_mats: np.ndarray, dense_w: np.ndarray, rest_vertices: np.ndarray,
     check(m.ndim == 4 and m.shape[-2:] == (4, 4) and m.shape[1] == dense_w.shape[1],
           f"skin matrices must be (F, {dense_w.shape[1]}, 4, 4), got {np.asarray(skin_mats).shape}")
     f, j = m.shape[:2]
-    rows = m[:, :, :3, :].reshape(f, j, 12).astype(np.float32)
-    blended = np.matmul(dense_w[None], rows).reshape(f, -1, 3, 4)  # (F, V, 3, 4)
-    v = rest_vertices.astype(np.float32, copy=False)
-    pos = (blended[..., 0] * v[None, :, 0:1] + blended[..., 1] * v[None, :, 1:2]
-           + blended[..., 2] * v[None, :, 2:3] + blended[..., 3])
+    wt = np.ascontiguousarray(dense_w.T, dtype=np.float32) if dense_w_t is None else dense_w_t
+    rows = np.ascontiguousarray(np.swapaxes(m[:, :, :3, :].reshape(f, j, 12), 1, 2), dtype=np.float32)
+    with _single_thread_blas():
+        b = np.matmul(rows, wt)  # (F, 12, V): b[:, 4*r + c] = blended M[r, c]
+    vt = np.ascontiguousarray(rest_vertices.T, dtype=np.float32)  # (3, V)
+    pos = np.empty((f, rest_vertices.shape[0], 3), dtype=np.float32)
+    for r in range(3):
+        pos[:, :, r] = b[:, 4 * r] * vt[0] + b[:, 4 * r + 1] * vt[1] + b[:, 4 * r + 2] * vt[2] + b[:, 4 * r + 3]
     nrm = None
     if rest_normals is not None:
-        n = rest_normals.astype(np.float32, copy=False)
-        nrm = blended[..., 0] * n[None, :, 0:1] + blended[..., 1] * n[None, :, 1:2] + blended[..., 2] * n[None, :, 2:3]
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
+        nt = np.ascontiguousarray(rest_normals.T, dtype=np.float32)
+        n3 = np.empty((3, f, nt.shape[1]), dtype=np.float32)
+        for r in range(3):
+            n3[r] = b[:, 4 * r] * nt[0] + b[:, 4 * r + 1] * nt[1] + b[:, 4 * r + 2] * nt[2]
+        inv = 1.0 / np.maximum(np.sqrt(n3[0] * n3[0] + n3[1] * n3[1] + n3[2] * n3[2]), 1e-12)
+        nrm = np.empty_like(pos)
+        for r in range(3):
+            nrm[:, :, r] = n3[r] * inv
     if single:
         return pos[0], (None if nrm is None else nrm[0])
     return pos, nrm
