@@ -8,12 +8,13 @@ from prt_torch.errors import check
 
 
 def weld(positions: np.ndarray, faces: np.ndarray, *keys: np.ndarray, decimals: int = 6
-         ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+         ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
     """Merge vertices whose position (rounded to ``decimals``) AND every per-vertex array in ``keys`` are equal.
 
     ``positions (V, 3)``, ``faces (T, 3)``, ``keys``: arrays ``(V, ...)`` (e.g. skin joints and weights).
-    Returns ``(positions (V', 3), faces (T', 3), [key (V', ...)])``; the first occurrence of each
-    vertex is kept (order preserved) and faces that become degenerate are dropped.
+    Returns ``(positions (V', 3), faces (T', 3), [key (V', ...)], index (V,))`` with ``index`` mapping
+    each input vertex to its welded vertex; the first occurrence of each vertex is kept (order
+    preserved) and faces that become degenerate are dropped.
     """
     positions = np.asarray(positions)
     v = positions.shape[0]
@@ -29,7 +30,7 @@ def weld(positions: np.ndarray, faces: np.ndarray, *keys: np.ndarray, decimals: 
     new_faces = remap[inverse[np.asarray(faces)]]
     ok = ((new_faces[:, 0] != new_faces[:, 1]) & (new_faces[:, 1] != new_faces[:, 2])
           & (new_faces[:, 0] != new_faces[:, 2]))
-    return positions[keep], new_faces[ok].astype(np.int64), [np.asarray(k)[keep] for k in keys]
+    return positions[keep], new_faces[ok].astype(np.int64), [np.asarray(k)[keep] for k in keys], remap[inverse]
 
 
 def vertex_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
