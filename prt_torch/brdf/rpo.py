@@ -1,0 +1,203 @@
+"""Reflection product operators (seed 003 sec. 4): build, save, load, and a catalogue of named RPOs.
+
+An RPO of a BRDF holds, for ``k`` Kautz-McCool terms and SH order ``n`` (``C = n*n``):
+
+* ``u (k, C)``: SH of the light factors ``U_b`` (sphere projection, :mod:`prt_torch.brdf.factor`);
+* ``w (k, C)``: SH of the view factors ``W_b`` (least squares over the upper hemisphere);
+* ``M (k, C, C)``: product matrices ``M_b = sum_k u_bk Gamma_{., ., k}`` (eq. 10);
+* ``tint (3,)``: RGB scale of the BRDF shape that was factored.
+
+Shading (eq. 11): ``L(wo) = tint * sum_b (w_b . y(wo)) (l . (M_b v))``. The paper stores
+``k n^2 (1 + n^2)`` floats (``M`` and ``w``; 2176 floats = 8704 bytes for ``k = 8``, ``n = 4``). The file
+here stores only ``u`` and ``w`` (``2 k n^2`` float32) and rebuilds ``M`` on load with the Gaunt tensor
+(numpy; loading never imports torch).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from prt_torch.brdf.analytic import BRDF, BlinnPhong, CookTorrance, Lambert, Phong, Ward
+from prt_torch.brdf.factor import (
+    DEFAULT_N_PHI,
+    DEFAULT_N_THETA,
+    factor_brdf,
+    hemisphere_rule,
+    project_factors,
+    sh_factor_error,
+    tabulate,
+)
+from prt_torch.errors import PrtError
+from prt_torch.io import atomic_path
+from prt_torch.sh.basis import check_order, order_from_coeffs
+from prt_torch.sh.product import MAX_PRODUCT_ORDER, product_matrix
+
+RPO_FORMAT_VERSION = 1
+
+
+@dataclass
+class RPO:
+    """A reflection product operator (see module docstring). Arrays are float32 numpy.
+
+    Attributes:
+        M: ``(k, C, C)`` product matrices of the light factors.
+        u: ``(k, C)`` light-factor SH.
+        w: ``(k, C)`` view-factor SH.
+        tint: ``(3,)`` RGB tint.
+        order: SH order ``n``.
+        name: catalogue / BRDF name.
+        rel_error: relative L2 error of the ``k``-term SVD truncation of ``f~``.
+        sh_rel_error: relative L2 error of the SH-projected factorisation vs ``f~`` (NaN if unknown).
+    """
+
+    M: np.ndarray
+    u: np.ndarray
+    w: np.ndarray
+    tint: np.ndarray
+    order: int
+    name: str
+    rel_error: float
+    sh_rel_error: float = float("nan")
+    meta: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def k(self) -> int:
+        """Number of BRDF terms."""
+        return int(self.u.shape[0])
+
+    @property
+    def paper_float_count(self) -> int:
+        """Seed 003's storage count ``k n^2 (1 + n^2)`` floats (``M`` and ``w``)."""
+        c = self.order * self.order
+        return self.k * c * (1 + c)
+
+    @property
+    def stored_float_count(self) -> int:
+        """Floats in our file: ``u`` and ``w`` (``2 k n^2``) plus the tint."""
+        return int(self.u.size + self.w.size + 3)
+
+    @classmethod
+    def from_factors(cls, u: np.ndarray, w: np.ndarray, tint: np.ndarray, name: str, rel_error: float,
+                     sh_rel_error: float = float("nan")) -> RPO:
+        """Validate ``u, w (k, C)`` and build ``M`` from ``u``."""
+        u = np.asarray(u, dtype=np.float32)
+        w = np.asarray(w, dtype=np.float32)
+        if u.ndim != 2 or u.shape != w.shape:
+            raise PrtError(f"RPO factors u and w must both be (k, C), got {u.shape} and {w.shape}")
+        order = order_from_coeffs(u.shape[1])
+        check_order(order, MAX_PRODUCT_ORDER)
+        if not (np.isfinite(u).all() and np.isfinite(w).all()):
+            raise PrtError("RPO factors contain NaN or Inf")
+        t = np.asarray(tint, dtype=np.float32).reshape(-1)
+        if t.shape != (3,) or not np.isfinite(t).all():
+            raise PrtError(f"RPO tint must be a finite RGB triple, got shape {t.shape}")
+        M = product_matrix(u.astype(np.float64)).astype(np.float32)
+        return cls(M=M, u=u, w=w, tint=t, order=order, name=str(name), rel_error=float(rel_error),
+                   sh_rel_error=float(sh_rel_error))
+
+    def save(self, path: str | os.PathLike[str]) -> int:
+        """Write ``u``, ``w``, ``tint`` (float32) and metadata as an uncompressed ``.npz``, atomically.
+
+        Returns the file size in bytes.
+        """
+        p = Path(path)
+        if p.suffix != ".npz":
+            raise PrtError(f"RPO files use the .npz suffix, got {p.name}")
+        with atomic_path(p) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, u=self.u.astype(np.float32), w=self.w.astype(np.float32),
+                         tint=self.tint.astype(np.float32),
+                         meta=np.array([RPO_FORMAT_VERSION, self.order, self.rel_error, self.sh_rel_error]),
+                         name=np.array(self.name))
+                f.flush()
+                os.fsync(f.fileno())
+        return p.stat().st_size
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> RPO:
+        """Read an RPO written by :meth:`save` (numpy only; ``M`` is rebuilt from ``u``)."""
+        p = Path(path)
+        if not p.is_file():
+            raise PrtError(f"RPO file not found: {p}")
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                u, w, tint, meta, name = z["u"], z["w"], z["tint"], z["meta"], str(z["name"])
+        except (KeyError, ValueError, OSError) as exc:
+            raise PrtError(f"{p.name}: not an RPO file ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+        if meta.shape != (4,) or int(meta[0]) != RPO_FORMAT_VERSION:
+            raise PrtError(f"{p.name}: unsupported RPO file version")
+        rpo = cls.from_factors(u, w, tint, name, float(meta[2]), float(meta[3]))
+        if rpo.order != int(meta[1]):
+            raise PrtError(f"{p.name}: RPO order {int(meta[1])} does not match its {u.shape[1]} coefficients")
+        return rpo
+
+
+def build_rpo(brdf: BRDF, order: int = 4, k: int = 8, n_theta: int = DEFAULT_N_THETA,
+              n_phi: int = DEFAULT_N_PHI, name: str | None = None) -> RPO:
+    """Tabulate, factor (``k`` terms), project to SH (order ``n``) and build an :class:`RPO`.
+
+    ``rel_error`` is the SVD truncation error, ``sh_rel_error`` the error of the SH-projected
+    factorisation over (sphere of ``wi``) x (hemisphere of ``wo``); ``meta["seconds"]`` the build time.
+    """
+    check_order(order, MAX_PRODUCT_ORDER)
+    if not isinstance(brdf, BRDF):
+        raise PrtError(f"build_rpo needs a BRDF, got {type(brdf).__name__}")
+    t0 = time.perf_counter()
+    dirs, _ = hemisphere_rule(n_theta, n_phi)
+    table = tabulate(brdf, dirs, dirs)
+    factors = factor_brdf(brdf, k, n_theta, n_phi, table=table)
+    u, w = project_factors(factors, order)
+    sh_err = sh_factor_error(factors, u, w, table)
+    rpo = RPO.from_factors(u, w, brdf.tint, name or brdf.name, factors.rel_error, sh_err)
+    rpo.meta["seconds"] = time.perf_counter() - t0
+    return rpo
+
+
+#: the catalogue: name -> BRDF factory (physically normalised defaults, white tint)
+CATALOGUE: dict[str, type[BRDF] | object] = {
+    "lambert": lambda: Lambert(),
+    "phong": lambda: Phong(exponent=16.0, kd=0.3, ks=0.7),
+    "blinn": lambda: BlinnPhong(exponent=32.0, kd=0.3, ks=0.7),
+    "ggx": lambda: CookTorrance(roughness=0.5, f0=0.04, kd=0.5, ks=0.5),
+    "ward": lambda: Ward(alpha=0.3, kd=0.3, ks=0.7),
+}
+
+
+def default_cache_dir() -> Path:
+    """``$PRT_CACHE`` or ``~/.cache/prt_torch``, plus ``/rpo``."""
+    return Path(os.environ.get("PRT_CACHE", Path.home() / ".cache" / "prt_torch")) / "rpo"
+
+
+def builtin_brdf(name: str) -> BRDF:
+    """A catalogue BRDF by name (``lambert``, ``phong``, ``blinn``, ``ggx``, ``ward``)."""
+    if name not in CATALOGUE:
+        raise PrtError(f"unknown built-in BRDF {name!r}: expected one of {', '.join(CATALOGUE)}")
+    return CATALOGUE[name]()  # type: ignore[operator]
+
+
+def builtin_rpo(name: str, order: int = 4, k: int = 8, cache_dir: str | os.PathLike[str] | None = None,
+                use_cache: bool = True) -> RPO:
+    """A catalogue RPO, loaded from ``cache_dir`` (default :func:`default_cache_dir`) or built (< 3 s)."""
+    brdf = builtin_brdf(name)
+    check_order(order, MAX_PRODUCT_ORDER)
+    key = hashlib.sha256(f"{RPO_FORMAT_VERSION}:{brdf!r}:{order}:{k}:{DEFAULT_N_THETA}x{DEFAULT_N_PHI}".encode())
+    path = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    path = path / f"{name}_n{order}_k{k}_{key.hexdigest()[:12]}.npz"
+    if use_cache and path.is_file():
+        try:
+            return RPO.load(path)
+        except PrtError:
+            pass  # a stale or damaged cache entry: rebuild it
+    rpo = build_rpo(brdf, order=order, k=k, name=name)
+    if use_cache:
+        try:
+            rpo.save(path)
+        except OSError:
+            pass  # a read-only cache is not an error
+    return rpo
