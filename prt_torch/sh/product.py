@@ -110,6 +110,9 @@ def _dense_gaunt(order: int) -> np.ndarray:
     dirs, w = gauss_product_rule(3 * (order - 1))
     y = sh_basis(dirs, order, check=False)  # (N, C)
     g = np.einsum("ni,nj,nk->ijk", y * w[:, None], y, y, optimize=True)
+    c = order * order
+    srt = np.sort(np.indices((c, c, c)).reshape(3, -1), axis=0)
+    g = g[srt[0], srt[1], srt[2]].reshape(c, c, c)  # exactly symmetric: every entry from its sorted (i<=j<=k)
     # exact zeros: selection rules (triangle + parity) plus round-off threshold
     band = band_of(order)
     li, lj, lk = np.meshgrid(band, band, band, indexing="ij")
