@@ -1,0 +1,390 @@
+"""The bake job: plan the frames, create (or resume) the store, run blocks of frames in parallel.
+
+``bake(cfg)`` is resumable and deterministic: the store is chunked by blocks of
+``frames_per_task`` frames, each block is one task (a local process, or a Dask task with
+``scheduler="tcp://HOST:PORT"``), and a block's ``done`` entries are written after its data.
+Re-running skips finished blocks; a run killed at any moment (even SIGKILL) loses only the
+blocks in flight, and the resumed result is bitwise equal to an uninterrupted bake, whatever the
+number of workers or the backend (all randomness comes from the config's seeds, and BLAS runs
+single-threaded inside a task).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from prt_torch.bake.embree import ray_offset, require_embreex
+from prt_torch.bake.frame import RaySet, bake_frame
+from prt_torch.bake.frames import cluster_axes, cluster_bones, cluster_vertices, local_frames
+from prt_torch.bake.plan import BakePlan, make_plan
+from prt_torch.bake.store import (
+    CHARACTER_FILE,
+    CONVENTIONS,
+    FORMAT_VERSION,
+    check_compatible,
+    create_store,
+    library_versions,
+    remove_partial_files,
+)
+from prt_torch.errors import PrtError
+
+if TYPE_CHECKING:
+    from prt_torch.config import RunConfig
+    from prt_torch.rig.character import Character
+
+DATASET_DIR = "dataset.zarr"
+
+
+@dataclass(frozen=True)
+class BlockTask:
+    """One task: frames ``[f0, f1)`` of the store at ``dataset`` (absolute path) with their
+    ``skin (f1 - f0, J, 4, 4)`` float64 matrices."""
+
+    dataset: str
+    f0: int
+    f1: int
+    skin: np.ndarray
+
+
+@dataclass(frozen=True)
+class BlockStats:
+    frames: int
+    rays: int
+    seconds: float
+
+
+@dataclass
+class BakeResult:
+    """What a :func:`run_bake` call did: ``frames``/``rays`` baked now (skipped ones excluded)."""
+
+    path: Path
+    frames: int
+    skipped: int
+    rays: int
+    seconds: float
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+    @property
+    def rays_per_s(self) -> float:
+        return self.rays / self.seconds if self.seconds > 0 else 0.0
+
+
+# -- worker side ---------------------------------------------------------------------------------
+
+@dataclass
+class _Context:
+    """Per-process state of a store's bake, built once per worker process (cached by path)."""
+
+    group: Any
+    character: Character
+    dense_w: np.ndarray
+    labels: np.ndarray
+    axes: np.ndarray
+    bones: np.ndarray
+    rays: RaySet
+    params: dict[str, Any]
+
+
+_CONTEXTS: dict[tuple[str, float], _Context] = {}
+
+
+def _context(dataset: str) -> _Context:
+    import zarr
+
+    from prt_torch.rig.character import Character
+
+    key = (dataset, os.stat(Path(dataset) / "zarr.json").st_mtime)
+    ctx = _CONTEXTS.get(key)
+    if ctx is None:
+        g = zarr.open_group(dataset, mode="r+")
+        params = dict(g.attrs["bake"])
+        ch = Character.load(Path(dataset).parent / CHARACTER_FILE)
+        if ch.content_hash() != g.attrs["character_hash"]:
+            raise PrtError(f"{Path(dataset).parent / CHARACTER_FILE} does not match {dataset}")
+        labels = np.asarray(g["cluster"][:])
+        ctx = _Context(group=g, character=ch, dense_w=ch.dense_weights, labels=labels,
+                       axes=np.asarray(g["cluster_axis"][:]), bones=np.asarray(g["cluster_bone"][:]),
+                       rays=RaySet.make(int(params["n_rays"]), int(params["order"]), ch.num_vertices,
+                                        int(params["seed"])),
+                       params=params)
+        _CONTEXTS.clear()
+        _CONTEXTS[key] = ctx
+    return ctx
+
+
+def bake_block(task: BlockTask) -> BlockStats:
+    """Bake frames ``[f0, f1)`` and write them; ``done`` is set last. Runs in a worker process."""
+    from threadpoolctl import threadpool_limits
+
+    from prt_torch.rig.skinning import skin
+
+    t0 = time.perf_counter()
+    with threadpool_limits(limits=1):
+        ctx = _context(task.dataset)
+        p = ctx.params
+        ch = ctx.character
+        pos, nrm = skin(task.skin, ctx.dense_w, ch.rest_vertices, ch.rest_normals)
+        assert nrm is not None
+        frames = local_frames(nrm, task.skin, ctx.labels, ctx.axes, ctx.bones)
+        n = task.f1 - task.f0
+        V = ch.num_vertices
+        vis = np.empty((n, V, int(p["order"]) ** 2), dtype=np.float32)
+        tr = np.empty((n, V, int(p["transfer_order"]) ** 2), dtype=np.float32) if p["transfer"] else None
+        rays = 0
+        for i in range(n):
+            res = bake_frame(pos[i], frames[i], ch.faces, ctx.rays, float(p["ray_offset_world"]),
+                             transfer_order=int(p["transfer_order"]) if p["transfer"] else None,
+                             bounces=int(p["bounces"]) if p["transfer"] else 0, albedo=float(p["albedo"]),
+                             max_rays=int(p["vertex_chunk_rays"]))
+            vis[i] = res.visibility
+            if tr is not None:
+                tr[i] = res.transfer
+            rays += res.n_rays
+    g = ctx.group
+    sl = slice(task.f0, task.f1)
+    g["positions"][sl] = pos.astype(np.float32)
+    g["normals"][sl] = nrm.astype(np.float32)
+    g["frames"][sl] = frames
+    g["visibility"][sl] = vis
+    if tr is not None:
+        g["transfer"][sl] = tr
+    g["done"][sl] = np.ones(n, dtype=bool)  # last: the block counts as baked only once all its data is in
+    return BlockStats(frames=n, rays=rays, seconds=time.perf_counter() - t0)
+
+
+def _init_worker() -> None:
+    """Process-pool initializer: keep BLAS single-threaded (workers already fill the cores)."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+# -- main side -----------------------------------------------------------------------------------
+
+def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any]:
+    b = cfg.bake
+    bake_params = {k: getattr(b, k) for k in ("order", "n_rays", "transfer", "transfer_order", "bounces", "albedo",
+                                              "seed", "ray_offset", "cluster_bandwidth", "max_clusters",
+                                              "min_cluster_size", "vertex_chunk_rays")}
+    bake_params["ray_offset_world"] = offset_world
+    return {
+        "format_version": FORMAT_VERSION,
+        "clip_names": plan.clip_names,
+        "splits": plan.splits,
+        "character_name": plan.character.name,
+        "character_hash": plan.character.content_hash(),
+        "sh_order": b.order,
+        "n_rays": b.n_rays,
+        "transfer_order": b.transfer_order if b.transfer else None,
+        "bake": bake_params,
+        "frames_fingerprint": plan.fingerprint(),
+        "conventions": CONVENTIONS,
+        "versions": library_versions(),
+        "config": cfg.model_dump(mode="json"),
+    }
+
+
+def _create(path: Path, cfg: RunConfig, plan: BakePlan, attrs: dict[str, Any]) -> None:
+    b = cfg.bake
+    ch = plan.character
+    labels = cluster_vertices(ch.dense_weights, bandwidth=b.cluster_bandwidth, max_clusters=b.max_clusters,
+                              min_size=b.min_cluster_size, seed=b.seed)
+    V = ch.num_vertices
+    per_frame: dict[str, tuple[tuple[int, ...], str]] = {
+        "positions": ((V, 3), "float32"), "normals": ((V, 3), "float32"), "frames": ((V, 3, 3), "float32"),
+        "visibility": ((V, b.order**2), "float32"),
+    }
+    if b.transfer:
+        per_frame["transfer"] = ((V, b.transfer_order**2), "float32")
+    arrays = {
+        "pose": plan.pose.astype(np.float32),
+        "clip_id": plan.clip_id.astype(np.int32),
+        "frame_index": plan.frame_index.astype(np.int32),
+        "faces": ch.faces.astype(np.int32),
+        "cluster": labels.astype(np.int32),
+        "cluster_axis": cluster_axes(ch.rest_vertices, labels),
+        "cluster_bone": cluster_bones(ch.dense_weights, labels),
+    }
+    create_store(path, arrays, per_frame, plan.n_frames, b.frames_per_task, attrs)
+
+
+def prepare(cfg: RunConfig, plan: BakePlan | None = None) -> tuple[Path, BakePlan]:
+    """Create the store (or check an existing one) and ``character.npz``; returns ``(dataset path, plan)``.
+
+    Nothing is written when an existing store or character file belongs to another bake.
+    """
+    import zarr
+
+    from prt_torch.rig.character import Character
+
+    require_embreex()
+    plan = make_plan(cfg) if plan is None else plan
+    out = cfg.out_dir.resolve()
+    path = out / DATASET_DIR
+    char_path = out / CHARACTER_FILE
+    attrs = _attrs(cfg, plan, ray_offset(plan.character.rest_vertices, cfg.bake.ray_offset))
+    exists = path.exists()
+    if exists:
+        try:
+            existing = dict(zarr.open_group(str(path), mode="r").attrs)
+        except Exception as exc:
+            raise PrtError(f"{path} exists but is not a zarr dataset ({type(exc).__name__}); "
+                           "move it away or delete it") from None
+        check_compatible(path, attrs, existing)
+    if char_path.exists():
+        try:
+            other = Character.load(char_path).content_hash()
+        except PrtError:
+            other = "unreadable"
+        if other != attrs["character_hash"]:
+            raise PrtError(f"{char_path} holds another character (hash {other[:12]}); nothing written")
+    else:
+        plan.character.save(char_path)
+    if not exists:
+        _create(path, cfg, plan, attrs)
+    else:
+        remove_partial_files(path)
+    return path, plan
+
+
+def _tasks(path: Path, plan: BakePlan) -> list[BlockTask]:
+    import zarr
+
+    done_arr = zarr.open_group(str(path), mode="r")["done"]
+    done = np.asarray(done_arr[:], dtype=bool)
+    fpt = int(done_arr.chunks[0])
+    tasks = []
+    for f0 in range(0, plan.n_frames, fpt):
+        f1 = min(plan.n_frames, f0 + fpt)
+        if not done[f0:f1].all():
+            tasks.append(BlockTask(dataset=str(path), f0=f0, f1=f1, skin=plan.skin[f0:f1]))
+    return tasks
+
+
+def _run_local(tasks: list[BlockTask], workers: int) -> Iterator[BlockStats]:
+    if workers <= 1 or len(tasks) <= 1:
+        for t in tasks:
+            yield bake_block(t)
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn"),
+                             initializer=_init_worker) as ex:
+        futures = [ex.submit(bake_block, t) for t in tasks]
+        try:
+            for fut in as_completed(futures):
+                yield fut.result()
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+
+
+def _run_dask(tasks: list[BlockTask], scheduler: str) -> Iterator[BlockStats]:
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError:
+        raise PrtError("the Dask backend needs dask[distributed]") from None
+    try:
+        client = Client(scheduler, timeout="20s", set_as_default=False)
+    except OSError as exc:
+        raise PrtError(f"cannot connect to the Dask scheduler at {scheduler} ({exc})") from None
+    try:
+        futures = [client.submit(bake_block, t, pure=False) for t in tasks]
+        for fut in as_completed(futures):
+            yield fut.result()
+    finally:
+        client.close()
+
+
+def run_bake(
+    cfg: RunConfig,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+    on_block: Callable[[BlockStats], None] | None = None,
+) -> BakeResult:
+    """Bake (or resume) a run's dataset; see :func:`bake`. Returns what was done and how fast."""
+    path, plan = prepare(cfg)
+    tasks = _tasks(path, plan)
+    total = plan.n_frames
+    todo = sum(t.f1 - t.f0 for t in tasks)
+    scheduler = scheduler if scheduler is not None else cfg.bake.scheduler
+    if workers is None:
+        workers = cfg.bake.workers or os.cpu_count() or 1
+    if workers < 1:
+        raise PrtError(f"workers must be >= 1, got {workers}")
+    stream = _run_dask(tasks, scheduler) if scheduler else _run_local(tasks, workers)
+    frames = rays = 0
+    t0 = time.perf_counter()
+    with _progress(progress, total, total - todo, "Dask" if scheduler else f"{workers} worker(s)") as advance:
+        for st in stream:
+            frames += st.frames
+            rays += st.rays
+            advance(st.frames, frames, rays, time.perf_counter() - t0)
+            if on_block is not None:
+                on_block(st)
+    return BakeResult(path=path, frames=frames, skipped=total - todo, rays=rays, seconds=time.perf_counter() - t0)
+
+
+def bake(cfg: RunConfig, workers: int | None = None, scheduler: str | None = None, progress: bool = True) -> Path:
+    """Bake the ground-truth dataset of a run config into ``<out_dir>/dataset.zarr``; returns its path.
+
+    Args:
+        cfg: the run config (``character`` and ``bake`` sections).
+        workers: local worker processes (default ``cfg.bake.workers``, 0 there meaning one per
+            core); 1 bakes in this process.
+        scheduler: Dask scheduler address (``tcp://HOST:PORT``); overrides the local pool.
+        progress: show a rich progress bar with frames/s and Mrays/s.
+    """
+    return run_bake(cfg, workers=workers, scheduler=scheduler, progress=progress).path
+
+
+class _progress:
+    """Context manager yielding ``advance(n, frames_now, rays_now, seconds)``."""
+
+    def __init__(self, enabled: bool, total: int, completed: int, backend: str) -> None:
+        self.enabled = enabled
+        self.total = total
+        self.completed = completed
+        self.backend = backend
+        self._progress: Any = None
+
+    def __enter__(self) -> Callable[[int, int, int, float], None]:
+        if not self.enabled:
+            return lambda *a: None
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self._progress = Progress(TextColumn("bake ({task.fields[backend]})"), BarColumn(), MofNCompleteColumn(),
+                                  TextColumn("frames"), TextColumn("{task.fields[rate]}"), TimeElapsedColumn(),
+                                  TimeRemainingColumn())
+        self._progress.start()
+        self._task = self._progress.add_task("bake", total=self.total, completed=self.completed,
+                                             backend=self.backend, rate="")
+
+        def advance(n: int, frames: int, rays: int, seconds: float) -> None:
+            s = max(seconds, 1e-9)
+            self._progress.update(self._task, advance=n,
+                                  rate=f"{frames / s:.2f} frames/s  {rays / s / 1e6:.2f} Mrays/s")
+
+        return advance
+
+    def __exit__(self, *exc: object) -> None:
+        if self._progress is not None:
+            self._progress.stop()
