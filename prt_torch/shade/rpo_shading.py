@@ -1,0 +1,148 @@
+"""RPO shading (seed 003 eq. 11), batched over vertices, in three algebraically equal evaluation orders.
+
+All quantities are in each vertex's local frame (z = normal): visibility ``v (..., V, C)``, lighting
+``l (..., V, C, 3)`` (e.g. from :func:`prt_torch.shade.lobes.rotate_lobes_to_frames`), view direction
+``wo (..., V, 3)`` (unit, toward the viewer). With ``W_b = w_b . y(wo)``::
+
+    L_c(wo) = tint_c sum_b W_b  l_c . (M_b v)                 "matrix":  k matrix-vector products (k C^2)
+            = tint_c sum_b W_b  u_b . (l_c x v)               "product": 3 SH products, then k dots
+            = tint_c        l_c . (u~ x v),  u~ = sum_b W_b u_b   "fused": ONE SH product for all k and RGB
+
+(``Gamma`` is symmetric, so ``l . (M(u) v) = u . (l x v) = l . (u x v)``). Products use dense gathers of
+the Gaunt non-zeros (:mod:`prt_torch.shade.gather_product`), never ``torch.sparse``, so all three export to
+ONNX. ``prt bench shade`` measures which is fastest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import nn
+
+from prt_torch.brdf.rpo import RPO
+from prt_torch.errors import PrtError
+from prt_torch.sh.basis import check_directions, sh_basis
+from prt_torch.shade.gather_product import gather_product, gaunt_gather_tensors
+
+Method = Literal["matrix", "product", "fused"]
+METHODS: tuple[str, ...] = ("matrix", "product", "fused")
+
+
+@dataclass
+class RPOTensors:
+    """Torch tensors of an RPO: ``M (k, C, C)``, ``u (k, C)``, ``w (k, C)``, ``tint (3,)``, and the Gaunt
+    gather tables ``I, J (C, P)`` int64, ``G (C, P)``."""
+
+    M: torch.Tensor
+    u: torch.Tensor
+    w: torch.Tensor
+    tint: torch.Tensor
+    I: torch.Tensor
+    J: torch.Tensor
+    G: torch.Tensor
+
+    @property
+    def order(self) -> int:
+        """SH order ``n``."""
+        return int(round(self.u.shape[1] ** 0.5))
+
+    @classmethod
+    def from_rpo(cls, rpo: RPO, dtype: Any = torch.float32, device: Any = None) -> RPOTensors:
+        """Convert an :class:`~prt_torch.brdf.rpo.RPO` (numpy) to tensors of ``dtype`` on ``device``."""
+        if not isinstance(rpo, RPO):
+            raise PrtError(f"expected an RPO, got {type(rpo).__name__}")
+        I, J, G = gaunt_gather_tensors(rpo.order, dtype, device)
+
+        def t(a: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(a), dtype=dtype, device=device)
+
+        return cls(t(rpo.M), t(rpo.u), t(rpo.w), t(rpo.tint), I, J, G)
+
+
+def _check_inputs(v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor, c: int) -> None:
+    for name, x in (("visibility", v), ("lighting", l_local), ("view directions", wo_local)):
+        if not isinstance(x, torch.Tensor):
+            raise PrtError(f"{name} must be a torch tensor, got {type(x).__name__}")
+        if not torch.isfinite(x).all():
+            raise PrtError(f"{name} contain NaN or Inf")
+    if v.ndim < 2 or v.shape[-1] != c:
+        raise PrtError(f"visibility must have shape (..., V, C={c}), got {tuple(v.shape)}")
+    if l_local.shape[:-1] != v.shape or l_local.shape[-1] != 3:
+        raise PrtError(f"lighting must have shape {(*v.shape, 3)} (..., V, C, 3), got {tuple(l_local.shape)}")
+    if wo_local.shape != (*v.shape[:-1], 3):
+        raise PrtError(f"view directions must have shape {(*v.shape[:-1], 3)} (..., V, 3), got "
+                       f"{tuple(wo_local.shape)}")
+    check_directions(wo_local, "view directions")
+
+
+def shade_rpo(v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor, rpo: RPOTensors | RPO,
+              method: Method = "fused", check: bool = True) -> torch.Tensor:
+    """Outgoing radiance ``(..., V, 3)`` of eq. 11 (see module docstring for the three methods).
+
+    Args:
+        v: ``(..., V, C)`` local-frame SH visibility.
+        l_local: ``(..., V, C, 3)`` local-frame SH lighting (RGB).
+        wo_local: ``(..., V, 3)`` unit view directions in the local frames.
+        rpo: :class:`RPOTensors` (or an :class:`RPO`, converted to ``v``'s dtype).
+        method: ``"matrix"``, ``"product"`` or ``"fused"`` (default, fastest on CPU).
+        check: validate the inputs.
+    """
+    if isinstance(rpo, RPO):
+        rpo = RPOTensors.from_rpo(rpo, v.dtype, v.device)
+    c = rpo.u.shape[1]
+    if check:
+        _check_inputs(v, l_local, wo_local, c)
+        if method not in METHODS:
+            raise PrtError(f"unknown RPO evaluation method {method!r}: expected one of {', '.join(METHODS)}")
+    W = sh_basis(wo_local, rpo.order, check=False) @ rpo.w.T  # (..., V, k)
+    if method == "matrix":
+        p = torch.einsum("bij,...j->...bi", rpo.M, v)  # (..., V, k, C): M_b v
+        t = torch.einsum("...bi,...ic->...bc", p, l_local)  # (..., V, k, 3)
+        out = (W.unsqueeze(-1) * t).sum(-2)
+    elif method == "product":
+        lv = gather_product(l_local.transpose(-1, -2), v.unsqueeze(-2), rpo.I, rpo.J, rpo.G)  # (..., V, 3, C)
+        t = lv @ rpo.u.T  # (..., V, 3, k)
+        out = (t * W.unsqueeze(-2)).sum(-1)
+    else:
+        u_view = W @ rpo.u  # (..., V, C)
+        q = gather_product(u_view, v, rpo.I, rpo.J, rpo.G)  # (..., V, C)
+        out = (q.unsqueeze(-1) * l_local).sum(-2)
+    return out * rpo.tint
+
+
+class RPOShader(nn.Module):
+    """``nn.Module`` for eq. 11 holding one RPO's tensors as buffers; swap the BRDF with :meth:`set_rpo`.
+
+    ``forward(v (..., V, C), l_local (..., V, C, 3), wo_local (..., V, 3)) -> (..., V, 3)``. Inputs are not
+    validated in ``forward`` (it is exported to ONNX); use :func:`shade_rpo` for a checked call.
+    """
+
+    def __init__(self, rpo: RPO, method: Method = "fused", dtype: Any = torch.float32) -> None:
+        super().__init__()
+        if method not in METHODS:
+            raise PrtError(f"unknown RPO evaluation method {method!r}: expected one of {', '.join(METHODS)}")
+        self.method: Method = method
+        self._dtype = dtype
+        t = RPOTensors.from_rpo(rpo, dtype)
+        for name in ("M", "u", "w", "tint", "I", "J", "G"):
+            self.register_buffer(name, getattr(t, name))
+        self.name = rpo.name
+
+    def set_rpo(self, rpo: RPO) -> None:
+        """Swap in another RPO of the same order and term count (buffers are replaced in place)."""
+        t = RPOTensors.from_rpo(rpo, self._dtype, self.u.device)
+        if t.u.shape != self.u.shape:
+            raise PrtError(f"set_rpo needs the same (k, C) = {tuple(self.u.shape)}, got {tuple(t.u.shape)}")
+        for name in ("M", "u", "w", "tint"):
+            getattr(self, name).copy_(getattr(t, name))
+        self.name = rpo.name
+
+    def tensors(self) -> RPOTensors:
+        """The buffers as :class:`RPOTensors`."""
+        return RPOTensors(self.M, self.u, self.w, self.tint, self.I, self.J, self.G)
+
+    def forward(self, v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor) -> torch.Tensor:
+        return shade_rpo(v, l_local, wo_local, self.tensors(), self.method, check=False)
