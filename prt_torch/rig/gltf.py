@@ -139,11 +139,12 @@ def _sample(times: np.ndarray, values: np.ndarray, interp: str, t: np.ndarray, i
     if k == 1:
         out = np.repeat(v[:1], t.size, axis=0)
         return out / np.linalg.norm(out, axis=-1, keepdims=True) if is_quat else out
-    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, k - 2)
+    te = t + 1e-6 * np.maximum(1.0, np.abs(t))  # key times are float32: a frame "on" a key reaches it
+    i = np.clip(np.searchsorted(times, te, side="right") - 1, 0, k - 2)
     td = times[i + 1] - times[i]
     s = np.clip((t - times[i]) / np.where(td > 0, td, 1.0), 0.0, 1.0)
     if interp == "STEP":
-        out = np.where((t >= times[i + 1])[:, None], v[i + 1], v[i])
+        out = np.where((te >= times[i + 1])[:, None], v[i + 1], v[i])
     elif interp == "CUBICSPLINE":
         s2, s3 = s * s, s * s * s
         h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
