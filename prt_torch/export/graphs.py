@@ -7,8 +7,11 @@
 * :class:`FusedGraph` - both in one graph.
 
 Shapes: ``B`` batch, ``V`` vertices, ``C = n*n`` SH coefficients of order ``n``, ``K`` lighting
-lobes, ``k`` BRDF terms, ``A`` pose-feature width. Frames ``F (B, V, 3, 3)`` have rows ``(t, b, n)``
-in world coordinates, so a world direction ``w`` has local coordinates ``F @ w`` (docs/DESIGN.md).
+lobes, ``k`` BRDF terms, ``A`` pose-feature width. A frame ``F`` has rows ``(t, b, n)`` in world
+coordinates, so a world direction ``w`` has local coordinates ``F @ w`` (docs/DESIGN.md). The
+graphs take frames and view directions **vertex-last** (``(B, 9, V)`` and ``(B, 3, V)``: the layout
+the player's posing path produces and the fastest one for onnxruntime); visibility is ``(B, V, C)``
+as the model gives it, radiance ``(B, V, 3)``.
 
 Shading, per vertex, with local lighting ``l (C, 3)``, visibility ``v (C,)``, local view ``wo``::
 
@@ -99,8 +102,9 @@ class ShadingGraph(nn.Module):
 
     Inputs (float32):
         visibility ``(B, V, C)`` local-frame SH visibility;
-        frames ``(B, V, 3, 3)`` rows ``(t, b, n)`` in world coordinates;
-        view_dirs ``(B, V, 3)`` unit world directions from the vertex towards the eye;
+        frames ``(B, 9, V)`` vertex-last: entry ``3i + j`` is ``F[i, j]`` of the frame with rows
+        ``(t, b, n)`` in world coordinates (``F.reshape(9)`` per vertex, stacked along the last axis);
+        view_dirs ``(B, 3, V)`` vertex-last unit world directions from the vertex towards the eye;
         lobe_dirs ``(K, 3)`` unit world lobe axes; lobe_coeffs ``(K, n, 3)`` per band, RGB;
         rpo_M ``(k, C, C)``, rpo_w ``(k, C)``, rpo_tint ``(3,)`` - the RPO.
 
@@ -122,13 +126,13 @@ class ShadingGraph(nn.Module):
                 rpo_tint: torch.Tensor) -> torch.Tensor:
         k, c, _ = rpo_M.shape
         n_lobes = lobe_dirs.shape[0]
-        b, v = frames.shape[0], frames.shape[1]
-        ft = frames.reshape(b, v, 9).transpose(1, 2)  # (B, 9, V): ft[., 3i+j, v] = F[v, i, j]
+        b, v = frames.shape[0], frames.shape[2]
+        ft = frames  # (B, 9, V): ft[., 3i+j, v] = F_v[i, j]
         # local coordinates F @ s of the K lobe axes: one MatMul with kron(I3, s) (K*3, 9)
         eye3 = torch.eye(3, dtype=frames.dtype)
         s_kron = (eye3.reshape(1, 3, 3, 1) * lobe_dirs.reshape(n_lobes, 1, 1, 3)).reshape(n_lobes * 3, 9)
         s_loc = (s_kron @ ft).reshape(b, n_lobes, 3, v)  # (B, K, 3, V)
-        view_t = view_dirs.transpose(1, 2)  # (B, 3, V)
+        view_t = view_dirs  # (B, 3, V)
         vx, vy, vz = view_t[:, 0], view_t[:, 1], view_t[:, 2]
         wo = torch.stack([ft[:, 3 * i] * vx + ft[:, 3 * i + 1] * vy + ft[:, 3 * i + 2] * vz for i in range(3)],
                          dim=1)  # (B, 3, V) local view direction F @ wo

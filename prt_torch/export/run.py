@@ -3,8 +3,9 @@
 Writes into ``run_dir``:
 
 * ``visibility.onnx``: ``pose (B, A) -> visibility (B, V, C)`` (local frame);
-* ``shading.onnx``: ``visibility, frames, view_dirs, lobe_dirs, lobe_coeffs, rpo_M, rpo_w, rpo_tint
-  -> radiance (B, V, 3)`` (:class:`prt_torch.export.graphs.ShadingGraph`);
+* ``shading.onnx``: ``visibility (B, V, C), frames (B, 9, V), view_dirs (B, 3, V), lobe_dirs (K, 3),
+  lobe_coeffs (K, n, 3), rpo_M (k, C, C), rpo_w (k, C), rpo_tint (3,) -> radiance (B, V, 3)``
+  (:class:`prt_torch.export.graphs.ShadingGraph`; frames and view directions vertex-last);
 * ``fused.onnx``: the two in one graph (``pose`` instead of ``visibility``);
 * ``rpo/<name>.npz`` for each named BRDF (loadable without torch);
 * ``export.json``: sizes, conventions, file names, parity errors, character hash - everything the
@@ -36,8 +37,8 @@ EXPORT_JSON = "export.json"
 RPO_DIR = "rpo"
 FORMAT = "prt_torch.export/1"
 
-#: default BRDFs exported with every run (names understood by :func:`prt_torch.brdf` named RPOs)
-DEFAULT_BRDFS = ("lambert", "phong", "cook_torrance")
+#: default BRDFs exported with every run (:func:`prt_torch.brdf.rpo.builtin_rpo` names)
+DEFAULT_BRDFS = ("lambert", "phong", "ggx", "ward")
 
 CONVENTIONS = ("z-up world; real SH orthonormal, index l*(l+1)+m, no Condon-Shortley phase (Ramamoorthi-Hanrahan); "
                "visibility in the local vertex frame rows (t, b, n), zero below the horizon; ZH lobe f_lm = g_l "
@@ -100,8 +101,16 @@ def write_frame_data(run_dir: Path) -> Path:
 
 
 def _view_dirs(positions: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """``(B, 3, V)`` vertex-last unit directions from ``positions (B, V, 3)`` to ``eye (3,)``."""
     d = eye[None, None, :] - positions
-    return (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return np.ascontiguousarray(d.transpose(0, 2, 1), dtype=np.float32)
+
+
+def _frames_vertex_last(frames: np.ndarray) -> np.ndarray:
+    """``(B, V, 3, 3) -> (B, 9, V)``."""
+    b, v = frames.shape[:2]
+    return np.ascontiguousarray(frames.reshape(b, v, 9).transpose(0, 2, 1), dtype=np.float32)
 
 
 def default_eye(positions: np.ndarray) -> np.ndarray:
@@ -175,7 +184,9 @@ def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: 
         "prt.format": FORMAT, "prt.conventions": CONVENTIONS, "prt.sh_order": order, "prt.n_coeffs": C,
         "prt.n_vertices": V, "prt.n_features": A, "prt.n_terms": n_terms, "prt.model_kind": model.kind,
         "prt.character_hash": character.content_hash(), "prt.character_name": character.name,
-        "prt.model_sha256": model_hash, "prt.frames": "rows (t, b, n) in world coordinates; local = F @ world",
+        "prt.model_sha256": model_hash,
+        "prt.frames": "frames input (B, 9, V): entry 3i+j = F[i, j], rows (t, b, n), world; local = F @ w",
+        "prt.view_dirs": "(B, 3, V) unit world directions vertex -> eye",
     }
     batch = {0: "B"}
     vis_graph = VisibilityGraph(model).eval()
@@ -190,7 +201,8 @@ def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: 
     M, w = pad_rpo(rpo, n_terms)
     with torch.no_grad():
         vis = vis_graph(torch.from_numpy(pose)).numpy()
-    shade_in = {"visibility": vis, "frames": held["frames"], "view_dirs": _view_dirs(held["positions"], eye),
+    shade_in = {"visibility": vis, "frames": _frames_vertex_last(held["frames"]),
+                "view_dirs": _view_dirs(held["positions"], eye),
                 "lobe_dirs": lobes[0], "lobe_coeffs": lobes[1], "rpo_M": M, "rpo_w": w,
                 "rpo_tint": np.asarray(rpo.tint, dtype=np.float32)}
     fused_in = {"pose": pose, **{k: shade_in[k] for k in SHADING_INPUTS[1:]}}
@@ -249,10 +261,7 @@ def pad_rpo(rpo: Any, n_terms: int) -> tuple[np.ndarray, np.ndarray]:
 
 def build_rpos(names: tuple[str, ...] | list[str], order: int, n_terms: int) -> dict[str, Any]:
     """Named RPOs of ``order`` with ``n_terms`` terms (via :mod:`prt_torch.brdf`)."""
-    from prt_torch import brdf
+    from prt_torch.brdf.rpo import builtin_rpo
 
     check(len(names) > 0, "export needs at least one BRDF")
-    out = {}
-    for name in names:
-        out[name] = brdf.named_rpo(name, order=order, k=n_terms)
-    return out
+    return {name: builtin_rpo(name, order=order, k=n_terms) for name in names}

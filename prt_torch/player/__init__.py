@@ -1,5 +1,6 @@
 """The run-time player (onnxruntime + numpy + pyvista; never torch): :class:`Player`."""
 
-from prt_torch.player.player import FrameState, Player, PlayResult
+from prt_torch.player.player import Player, PlayResult
+from prt_torch.player.posing import PoseBatch, Poser
 
-__all__ = ["FrameState", "PlayResult", "Player"]
+__all__ = ["PlayResult", "PoseBatch", "Player", "Poser"]

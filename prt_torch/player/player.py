@@ -4,8 +4,8 @@ or running it never imports torch or the training code.
 
 Per frame (``Player.compute``)::
 
-    local (B, J, 4, 4) --FK--> skin (B, J, 4, 4) --LBS--> positions, normals (B, V, 3)
-        --cluster axes--> frames (B, V, 3, 3);  pose features (B, A)
+    local (B, J, 4, 4) --FK--> skin (B, J, 4, 4) --LBS--> positions, normals (B, 3, V)
+        --cluster axes--> frames (B, 9, V);  pose features (B, A)   (prt_torch.player.posing, vertex-last)
     [fused]  ORT fused.onnx(pose, frames, view dirs, lobes, RPO) -> radiance (B, V, 3)
     [split]  ORT visibility.onnx(pose) -> (B, V, C);  ORT shading.onnx(...) -> radiance
     radiance --exposure, gamma--> uint8 colours
@@ -14,7 +14,7 @@ Embedding::
 
     p = Player("runs/demo", env="uffizi.hdr", brdf="phong")
     result = p.play("walk", out="walk.mp4")           # or png_dir=..., frames=..., show=True
-    img = p.render_frame(p.compute(p.clip_locals("walk")[:1]))
+    img = p.render_frame(*p.compute(p.clip_locals("walk")[:1]))
 """
 
 from __future__ import annotations
@@ -30,23 +30,11 @@ import numpy as np
 from prt_torch.errors import PrtError, check
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
+from prt_torch.player.posing import PoseBatch, Poser
 from prt_torch.player.timing import FrameTimer
 from prt_torch.player.tonemap import auto_exposure, to_colors
 
 GRAPH_MODES = ("fused", "split")
-
-
-@dataclass
-class FrameState:
-    """One batch of posed characters: ``positions, normals (B, V, 3)``, ``frames (B, V, 3, 3)``,
-    ``features (B, A)``, ``view_dirs (B, V, 3)``, all float32; ``radiance (B, V, 3)`` once shaded."""
-
-    positions: np.ndarray
-    normals: np.ndarray
-    frames: np.ndarray
-    features: np.ndarray
-    view_dirs: np.ndarray
-    radiance: np.ndarray | None = None
 
 
 @dataclass
@@ -92,7 +80,7 @@ class Player:
         self.exposure = exposure
         self.unshadowed = hemisphere_visibility(self.order)
         ch = self.character
-        self._dense_w = ch.dense_weights
+        self.poser = Poser(ch, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone)
         rest = ch.rest_vertices
         lo, hi = rest.min(0), rest.max(0)
         self.center = (0.5 * (lo + hi)).astype(np.float32)
@@ -138,28 +126,11 @@ class Player:
             c = c.resample(fps)
         return np.asarray(c.local)
 
-    def pose(self, local: np.ndarray) -> FrameState:
+    def pose(self, local: np.ndarray) -> PoseBatch:
         """numpy FK, LBS, local frames, pose features and view directions for ``(B, J, 4, 4)`` locals."""
-        from prt_torch.bake.frames import local_frames
-        from prt_torch.rig.features import pose_features
-        from prt_torch.rig.skeleton import forward_kinematics
-        from prt_torch.rig.skinning import skin
+        return self.poser(local, self.eye)
 
-        ch = self.character
-        local = np.asarray(local, dtype=np.float64)
-        check(local.ndim == 4 and local.shape[1:] == (ch.num_joints, 4, 4),
-              f"local joint transforms must be (B, {ch.num_joints}, 4, 4), got {local.shape}")
-        check(bool(np.isfinite(local).all()), "local joint transforms contain NaN or Inf")
-        world = forward_kinematics(ch.parents, local)
-        skin_mats = world @ ch.inverse_bind[None]
-        pos, nrm = skin(skin_mats, self._dense_w, ch.rest_vertices, ch.rest_normals)
-        frames = local_frames(nrm, skin_mats, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone)
-        feats = pose_features(local, ch.bind_local, ch.parents)
-        view = _unit(self.eye[None, None, :] - pos).astype(np.float32)
-        return FrameState(pos.astype(np.float32, copy=False), nrm, np.ascontiguousarray(frames, dtype=np.float32),
-                          np.ascontiguousarray(feats, dtype=np.float32), view)
-
-    def _shading_feeds(self, state: FrameState) -> dict[str, np.ndarray]:
+    def _shading_feeds(self, state: PoseBatch) -> dict[str, np.ndarray]:
         return {"frames": state.frames, "view_dirs": state.view_dirs, "lobe_dirs": self._lobe_dirs,
                 "lobe_coeffs": self.lighting.coeffs, "rpo_M": self.rpo.M, "rpo_w": self.rpo.w,
                 "rpo_tint": self.rpo.tint}
@@ -171,7 +142,7 @@ class Player:
             return g.run({"pose": features})["visibility"]
         return g.run_unchecked({"pose": features})[0]
 
-    def shade(self, state: FrameState, visibility: np.ndarray | None = None, checked: bool = True,
+    def shade(self, state: PoseBatch, visibility: np.ndarray | None = None, checked: bool = True,
               timer: FrameTimer | None = None) -> np.ndarray:
         """Radiance ``(B, V, 3)``: from the model (``visibility=None``) or a given ``(B, V, C)`` visibility."""
         feeds = self._shading_feeds(state)
@@ -189,21 +160,20 @@ class Player:
         t1 = time.perf_counter()
         g = self.bundle.graphs["shading"]
         feeds["visibility"] = np.ascontiguousarray(np.broadcast_to(
-            visibility, state.frames.shape[:2] + (self.order ** 2,)), dtype=np.float32)
+            visibility, (state.frames.shape[0], state.frames.shape[2], self.order ** 2)), dtype=np.float32)
         out = g.run(feeds)["radiance"] if checked else g.run_unchecked(feeds)[0]
         if timer is not None:
             timer.add("visibility", t1 - t0)
             timer.add("shading", time.perf_counter() - t1)
         return out
 
-    def compute(self, local: np.ndarray, timer: FrameTimer | None = None) -> FrameState:
-        """The whole per-frame compute path for ``(B, J, 4, 4)`` locals; returns the shaded state."""
+    def compute(self, local: np.ndarray, timer: FrameTimer | None = None) -> tuple[PoseBatch, np.ndarray]:
+        """The whole per-frame compute path for ``(B, J, 4, 4)`` locals -> (posed batch, radiance (B, V, 3))."""
         t0 = time.perf_counter()
         state = self.pose(local)
         if timer is not None:
             timer.add("pose", time.perf_counter() - t0)
-        state.radiance = self.shade(state, checked=False, timer=timer)
-        return state
+        return state, self.shade(state, checked=False, timer=timer)
 
     def colors(self, radiance: np.ndarray) -> np.ndarray:
         """uint8 colours; fixes the exposure from the first call when it was not given."""
@@ -224,12 +194,10 @@ class Player:
         self._renderer.set_camera(self.eye, self.center)
         return self._renderer
 
-    def render_frame(self, state: FrameState, index: int = 0, colors: np.ndarray | None = None) -> np.ndarray:
-        """Render character ``index`` of a shaded state to an ``(H, W, 3)`` uint8 image (offscreen)."""
-        check(state.radiance is not None or colors is not None, "render_frame needs a shaded state or colours")
-        col = colors if colors is not None else self.colors(state.radiance[index])
+    def render_frame(self, state: PoseBatch, radiance: np.ndarray, index: int = 0) -> np.ndarray:
+        """Render character ``index`` with ``radiance (B, V, 3)`` to an ``(H, W, 3)`` uint8 image (offscreen)."""
         r = self.renderer(off_screen=True)
-        r.update(state.positions[index], col)
+        r.update(state.positions_vx3(index), self.colors(radiance[index]))
         return r.render()
 
     def play(self, clip: str, out: str | os.PathLike[str] | None = None, png_dir: str | os.PathLike[str] | None = None,
@@ -269,13 +237,13 @@ class Player:
         prog = _progress(progress, n, f"playing {clip}")
         try:
             for i in range(n):
-                state = self.compute(locals_[i:i + 1], timer)
+                state, radiance = self.compute(locals_[i:i + 1], timer)
                 with timer.step("colors"):
-                    col = self.colors(state.radiance[0])
+                    col = self.colors(radiance[0])
                 if renderer is not None:
                     with timer.step("render"):
                         renderer.set_camera(self.eye, self.center)
-                        renderer.update(state.positions[0], col)
+                        renderer.update(state.positions_vx3(0), col)
                         if show:
                             renderer.plotter.update()
                             img = None

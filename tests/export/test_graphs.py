@@ -39,7 +39,10 @@ def _gauss_sphere(n: int) -> tuple[np.ndarray, np.ndarray]:
 def reference_shading(inp: dict[str, np.ndarray], order: int) -> np.ndarray:
     """Seed 003 eq. 11, float64, with the local lighting obtained by projecting the rotated world
     lighting onto the SH basis by quadrature (no SH rotation formula involved)."""
-    vis, frames, view = inp["visibility"], inp["frames"], inp["view_dirs"]
+    vis = inp["visibility"]
+    b, _, v = inp["frames"].shape
+    frames = inp["frames"].transpose(0, 2, 1).reshape(b, v, 3, 3)  # vertex-last -> (B, V, 3, 3)
+    view = inp["view_dirs"].transpose(0, 2, 1)
     s, g = inp["lobe_dirs"].astype(np.float64), inp["lobe_coeffs"].astype(np.float64)
     M, w, tint = (inp[k].astype(np.float64) for k in ("rpo_M", "rpo_w", "rpo_tint"))
     world_sh = np.einsum("kc,kcr->cr", sh_basis(_unit(s), order), g[:, band_of(order), :])  # (C, 3)
@@ -58,8 +61,8 @@ def random_inputs(rng: np.random.Generator, b: int, v: int, order: int, k: int, 
     c = order * order
     return {
         "visibility": rng.normal(size=(b, v, c)).astype(np.float32),
-        "frames": _rotations(rng, (b, v)).astype(np.float32),
-        "view_dirs": _unit(rng.normal(size=(b, v, 3))).astype(np.float32),
+        "frames": np.ascontiguousarray(_rotations(rng, (b, v)).reshape(b, v, 9).transpose(0, 2, 1), np.float32),
+        "view_dirs": np.ascontiguousarray(_unit(rng.normal(size=(b, v, 3))).transpose(0, 2, 1), np.float32),
         "lobe_dirs": _unit(rng.normal(size=(n_lobes, 3))).astype(np.float32),
         "lobe_coeffs": rng.normal(size=(n_lobes, order, 3)).astype(np.float32),
         "rpo_M": rng.normal(size=(k, c, c)).astype(np.float32),
@@ -85,7 +88,7 @@ def test_shading_graph_matches_quadrature_reference(order: int, k: int) -> None:
     inp = random_inputs(rng, 2, 9, order, k)
     got = ShadingGraph(order, k)(*[torch.from_numpy(inp[n]) for n in SHADING_INPUTS]).numpy()
     want = reference_shading(inp, order)
-    assert got.shape == (2, 9, 3)
+    assert got.shape == (2, 9, 3)  # (B, V, 3)
     assert np.abs(got - want).max() <= 1e-4 * np.abs(want).max()
 
 
@@ -94,7 +97,10 @@ def test_shading_is_invariant_under_a_global_rotation() -> None:
     rng = np.random.default_rng(3)
     inp = random_inputs(rng, 1, 12, 4, 8)
     R = _rotations(rng, ()).astype(np.float32)
-    rot = dict(inp, frames=inp["frames"] @ R.T, view_dirs=inp["view_dirs"] @ R.T, lobe_dirs=inp["lobe_dirs"] @ R.T)
+    b, _, v = inp["frames"].shape
+    fr = inp["frames"].transpose(0, 2, 1).reshape(b, v, 3, 3) @ R.T  # F' = F R^T: local coords unchanged
+    rot = dict(inp, frames=fr.reshape(b, v, 9).transpose(0, 2, 1), view_dirs=R @ inp["view_dirs"],
+               lobe_dirs=inp["lobe_dirs"] @ R.T)
     g = ShadingGraph(4, 8)
     a = g(*[torch.from_numpy(np.ascontiguousarray(inp[n])) for n in SHADING_INPUTS]).numpy()
     b = g(*[torch.from_numpy(np.ascontiguousarray(rot[n])) for n in SHADING_INPUTS]).numpy()
