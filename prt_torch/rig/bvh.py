@@ -107,6 +107,8 @@ def load_bvh(path: str | os.PathLike[str], scale: float = 1.0, name: str | None 
                 i += 2 + n
             else:
                 raise PrtError(f"{path.name}: unexpected token {t!r} in BVH hierarchy")
+    except PrtError:
+        raise
     except (IndexError, ValueError):
         raise PrtError(f"{path.name}: malformed BVH hierarchy") from None
     check(len(names) > 0 and not stack, f"{path.name}: empty or unbalanced BVH hierarchy")
@@ -118,6 +120,8 @@ def load_bvh(path: str | os.PathLike[str], scale: float = 1.0, name: str | None 
         check(lines[1].strip().startswith("Frame Time:"), f"{path.name}: missing 'Frame Time:' line")
         frame_time = float(lines[1].split(":")[1])
         data = np.array(" ".join(lines[2:]).split(), dtype=np.float64)
+    except PrtError:
+        raise
     except (IndexError, ValueError):
         raise PrtError(f"{path.name}: malformed BVH motion section") from None
     check(frame_time > 0, f"{path.name}: Frame Time must be > 0")
