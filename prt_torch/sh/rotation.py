@@ -52,9 +52,9 @@ def _p_terms(i: int, l: int, a: int, b: int) -> list[_Term]:
 
 
 @functools.cache
-def _band_terms(l: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _band_terms(l: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Terms of band ``l >= 2``: ``coef (T,)``, ``r1_idx (T,)`` flat into 3x3, ``prev_idx (T,)`` flat into
-    ``(2l-1)^2``, ``out (T, (2l+1)^2)`` 0/1 scatter matrix."""
+    ``(2l-1)^2``, ``out_idx (T,)`` flat into ``(2l+1)^2`` (sorted), ``starts ((2l+1)^2,)`` segment starts."""
     coefs: list[float] = []
     r1: list[int] = []
     prev: list[int] = []
@@ -95,10 +95,11 @@ def _band_terms(l: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
                 r1.append((i + 1) * 3 + (j + 1))
                 prev.append((a + l - 1) * w_prev + (b + l - 1))
                 outs.append((m + l) * (2 * l + 1) + (n + l))
-    t = len(coefs)
-    scatter = np.zeros((t, (2 * l + 1) ** 2))
-    scatter[np.arange(t), outs] = 1.0
-    return np.asarray(coefs), np.asarray(r1, dtype=np.int64), np.asarray(prev, dtype=np.int64), scatter
+    # terms are generated in output order, every output has >= 2 terms: segment sums by reduceat
+    starts = np.flatnonzero(np.diff(np.asarray(outs), prepend=-1))
+    assert len(starts) == (2 * l + 1) ** 2
+    return (np.asarray(coefs), np.asarray(r1, dtype=np.int64), np.asarray(prev, dtype=np.int64),
+            np.asarray(outs, dtype=np.int64), starts)
 
 
 def _check_rotation(R: Any) -> None:
@@ -122,6 +123,58 @@ def _check_rotation(R: Any) -> None:
         raise PrtError("rotation has det -1 (a reflection): expected a proper rotation, det +1")
 
 
+#: Rotations processed per chunk (bounds the ``(chunk, T)`` temporaries to ~100 MB at order 8).
+_CHUNK = 8192
+
+
+def sh_rotation_blocks(R: Array, order: int, check: bool = True) -> list[Array]:
+    """Per-band blocks of :func:`sh_rotation`: ``[(..., 2l+1, 2l+1) for l < order]`` (no ``C x C`` padding).
+
+    Same conventions, backends and validation as :func:`sh_rotation`; use this for large batches
+    (e.g. one rotation per vertex) where the zero off-diagonal blocks would dominate memory.
+    """
+    check_order(order)
+    if check:
+        _check_rotation(R)
+    torch_mode = _is_torch(R)
+    batch = tuple(R.shape[:-2])
+    flat = R.reshape(-1, 3, 3)
+    nb = flat.shape[0]
+    if nb > _CHUNK:
+        parts = [sh_rotation_blocks(flat[i : i + _CHUNK], order, check=False) for i in range(0, nb, _CHUNK)]
+        if torch_mode:
+            import torch
+
+            cat = [torch.cat([p[l] for p in parts]) for l in range(order)]
+        else:
+            cat = [np.concatenate([p[l] for p in parts]) for l in range(order)]
+        return [b.reshape(*batch, 2 * l + 1, 2 * l + 1) for l, b in enumerate(cat)]
+    r1 = flat[:, _PERM, :][:, :, _PERM]  # band-1 block (B, 3, 3)
+    blocks = [flat[:, :1, :1] * 0 + 1]
+    if order > 1:
+        blocks.append(r1)
+    r1_flat = r1.reshape(nb, 9)
+    prev = r1
+    for l in range(2, order):
+        coef, ri, pi, oi, starts = _band_terms(l)
+        prev_flat = prev.reshape(nb, (2 * l - 1) ** 2)
+        k = (2 * l + 1) ** 2
+        if torch_mode:
+            import torch
+
+            dev = R.device
+            vals = (torch.as_tensor(coef, dtype=R.dtype, device=dev) * r1_flat[:, torch.as_tensor(ri, device=dev)]
+                    * prev_flat[:, torch.as_tensor(pi, device=dev)])
+            cur = vals.new_zeros(nb, k).index_add(1, torch.as_tensor(oi, device=dev), vals)
+        else:
+            vals = coef.astype(R.dtype) * r1_flat[:, ri] * prev_flat[:, pi]
+            cur = np.add.reduceat(vals, starts, axis=1)
+        cur = cur.reshape(nb, 2 * l + 1, 2 * l + 1)
+        blocks.append(cur)
+        prev = cur
+    return [b.reshape(*batch, 2 * l + 1, 2 * l + 1) for l, b in enumerate(blocks)]
+
+
 def sh_rotation(R: Array, order: int, check: bool = True) -> Array:
     """Block-diagonal real SH rotation matrices ``D(R)``: coefficients of ``f(R^T w)`` are ``D @ f``.
 
@@ -133,39 +186,12 @@ def sh_rotation(R: Array, order: int, check: bool = True) -> Array:
 
     Returns:
         ``(..., C, C)`` in the backend, dtype and device of ``R``; orthogonal, ``D(R1 R2) = D(R1) D(R2)``.
+        See :func:`sh_rotation_blocks` for the blocks alone.
     """
-    check_order(order)
-    if check:
-        _check_rotation(R)
-    torch_mode = _is_torch(R)
+    blocks = sh_rotation_blocks(R, order, check=check)
     batch = tuple(R.shape[:-2])
     c = order * order
-    r1 = R[..., _PERM, :][..., :, _PERM]  # band-1 block (..., 3, 3)
-    blocks = [R[..., :1, :1] * 0 + 1]
-    if order > 1:
-        blocks.append(r1)
-    r1_flat = r1.reshape(*batch, 9)
-    prev = r1
-    for l in range(2, order):
-        coef, ri, pi, scatter = _band_terms(l)
-        prev_flat = prev.reshape(*batch, (2 * l - 1) ** 2)
-        if torch_mode:
-            import torch
-
-            coef_t = torch.as_tensor(coef, dtype=R.dtype, device=R.device)
-            sc_t = torch.as_tensor(scatter, dtype=R.dtype, device=R.device)
-            ri_t = torch.as_tensor(ri, device=R.device)
-            pi_t = torch.as_tensor(pi, device=R.device)
-            vals = coef_t * r1_flat[..., ri_t] * prev_flat[..., pi_t]
-            cur = (vals @ sc_t).reshape(*batch, 2 * l + 1, 2 * l + 1)
-        else:
-            vals = coef.astype(R.dtype) * r1_flat[..., ri] * prev_flat[..., pi]
-            cur = (vals @ scatter.astype(R.dtype)).reshape(*batch, 2 * l + 1, 2 * l + 1)
-        blocks.append(cur)
-        prev = cur
-    if torch_mode:
-        import torch
-
+    if _is_torch(R):
         out = R.new_zeros(*batch, c, c)
     else:
         out = np.zeros(batch + (c, c), dtype=R.dtype)

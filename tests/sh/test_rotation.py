@@ -100,3 +100,23 @@ def test_bad_rotation(bad: np.ndarray, match: str) -> None:
 def test_bad_order() -> None:
     with pytest.raises(PrtError, match="unsupported SH order"):
         sh_rotation(np.eye(3), 0)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "torch"])
+def test_chunked_batches_and_blocks(backend: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    import prt_torch.sh.rotation as rot
+
+    rs = random_rotations(14, seed=5).reshape(2, 7, 3, 3)
+    x = rs if backend == "numpy" else torch.tensor(rs)
+    whole = np.asarray(rot.sh_rotation(x, 5))
+    monkeypatch.setattr(rot, "_CHUNK", 3)
+    chunked = np.asarray(rot.sh_rotation(x, 5))
+    assert chunked.shape == (2, 7, 25, 25)
+    np.testing.assert_allclose(chunked, whole, atol=1e-15)
+    blocks = rot.sh_rotation_blocks(x, 5)
+    for l, b in enumerate(blocks):
+        assert tuple(b.shape) == (2, 7, 2 * l + 1, 2 * l + 1)
+        np.testing.assert_allclose(np.asarray(b), whole[..., l * l : (l + 1) ** 2, l * l : (l + 1) ** 2], atol=1e-15)
+    # and against re-projection for one element
+    f = np.random.default_rng(0).normal(size=25)
+    np.testing.assert_allclose(whole[1, 3] @ f, _reprojected(rs[1, 3], f, 5), atol=1e-12)
