@@ -30,6 +30,8 @@ _LAZY = {
     "reconstruct": "project",
     "evaluate": "project",
     "sh_rotation": "rotation",
+    "sh_rotation_blocks": "rotation",
+    "gauss_product_rule": "quadrature",
     "gaunt_tensor": "product",
     "GauntTensor": "product",
     "product_matrix": "product",
