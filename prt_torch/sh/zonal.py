@@ -197,9 +197,9 @@ def zh_project(
     """ZH coefficients ``g_l = 2 pi int_{-1}^{1} h(t) P_l(t) dt`` of ``f(w) = h(cos theta)``, ``(n,)`` float64.
 
     Gauss-Legendre quadrature in ``t = cos theta`` with ``n_points`` nodes on each of ``[-1, 0]``
-    and ``[0, 1]`` (``split_at_horizon``; exact for ``h`` polynomial of degree ``< 2 n_points - order``
-    on each half, so a kink or jump at the horizon, e.g. the clamped cosine, costs no accuracy), or
-    on ``[-1, 1]`` at once.
+    and ``[0, 1]`` (``split_at_horizon``), or on ``[-1, 1]`` at once. Exact when ``h`` is a polynomial
+    of degree ``<= 2 n_points - order`` on each interval, so with the split a kink or jump at the
+    horizon (the clamped cosine, the hemisphere indicator) costs no accuracy.
 
     Args:
         fn_of_cos: vectorised ``h``: float64 ``(N,)`` cosines -> ``(N,)`` values.
