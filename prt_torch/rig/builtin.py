@@ -18,7 +18,8 @@ the local ``-x`` axis).
 Skin weights: each surface part belongs to one joint; a vertex's weight for joint ``j`` is
 ``exp(-(d_p - d_min) / SKIN_FALLOFF)`` summed over ``j``'s parts (``d_p``: the part's distance
 function), restricted to the skeleton neighbours (parent, children) of the vertex's nearest part's
-joint, smoothed over the mesh, reduced to the top 4 and normalised.
+joint (a soft mask, blended where the nearest part changes), smoothed over the mesh, reduced
+to the top 4 and normalised.
 
 Motions (30 fps, root motion is vertical/planted only, the character stays in place): ``walk``,
 ``run``, ``jumping_jacks``, ``squat``, ``wave``, ``stretch``. Feet are kept on the ground: each frame
@@ -49,7 +50,7 @@ NAME = "builtin-humanoid"
 FPS = 30.0
 GRID_SPACING = 0.0143  # metres at density 1
 BLEND = 0.018  # smooth-union radius of the implicit surface
-SKIN_FALLOFF = 0.02  # skin weight falloff distance
+SKIN_FALLOFF = 0.03  # skin weight falloff distance
 ARM_BIND_ELEVATION = 45.0  # degrees from straight down
 ARM_REST_ELEVATION = 14.0  # arms hanging beside (not through) the torso in the motions
 CLIP_NAMES = ("walk", "run", "jumping_jacks", "squat", "wave", "stretch")
@@ -216,22 +217,25 @@ def _mesh(density: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return verts, faces, normals
 
 
-def _skin_weights(verts: np.ndarray, faces: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _skin_weights(verts: np.ndarray, faces: np.ndarray, parents: np.ndarray, density: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
     parts = _parts()
     d = _part_distances(parts, verts)  # (P, V)
     part_joint = np.array([_IDX[p.joint] for p in parts])
     j = len(JOINT_NAMES)
-    nearest = part_joint[np.argmin(d, axis=0)]  # (V,)
-    allowed = np.eye(j, dtype=bool)
+    allowed = np.eye(j)
     for c, p in enumerate(parents):
         if p >= 0:
-            allowed[c, p] = allowed[p, c] = True
+            allowed[c, p] = allowed[p, c] = 1.0
     score = np.exp(-(d - d.min(axis=0)) / SKIN_FALLOFF)  # (P, V)
     w = np.zeros((verts.shape[0], j))
     np.add.at(w.T, part_joint, score)
-    w *= allowed[nearest]
+    # soft "neighbours of the nearest part's joint" mask: continuous where the nearest part changes
+    near = np.exp(-(d - d.min(axis=0)) / (0.5 * SKIN_FALLOFF))  # (P, V)
+    mask = (near.T @ allowed[part_joint]) / near.sum(axis=0)[:, None]  # (V, J)
+    w *= mask
     lap = _adjacency(faces, verts.shape[0])
-    for _ in range(4):
+    for _ in range(int(round(12 * density)) + 2):  # ~ the same geometric smoothing radius at every density
         w = 0.5 * w + 0.5 * (lap @ w)
     w /= w.sum(1, keepdims=True)
     top = np.argsort(-w, axis=1, kind="stable")[:, :4]
@@ -362,12 +366,12 @@ def _walk(t: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def _run(t: np.ndarray) -> dict[str, np.ndarray]:
-    ph = 2 * np.pi * t / 0.7
+    ph = 2 * np.pi * t / 0.8
     d: dict[str, np.ndarray] = {}
     for s, sign in (("l", 1.0), ("r", -1.0)):
         p = ph + (0.0 if sign > 0 else np.pi)
         d[f"{s}_hip_flex"] = 18 + 40 * np.sin(p)
-        d[f"{s}_knee"] = 15 + 95 * np.maximum(0.0, np.cos(p)) ** 2
+        d[f"{s}_knee"] = 15 + 85 * np.maximum(0.0, np.cos(p)) ** 2
         d[f"{s}_ankle"] = 12 * np.sin(p)
         d[f"{s}_shoulder_flex"] = 8 - 45 * np.sin(p)
         d[f"{s}_shoulder_elev"] = np.full_like(t, 18.0)
@@ -449,7 +453,7 @@ def _stretch(t: np.ndarray) -> dict[str, np.ndarray]:
 
 MOTIONS: dict[str, tuple[float, Callable[[np.ndarray], dict[str, np.ndarray]]]] = {
     "walk": (2.0, _walk),
-    "run": (1.4, _run),
+    "run": (1.6, _run),
     "jumping_jacks": (2.0, _jumping_jacks),
     "squat": (3.2, _squat),
     "wave": (3.0, _wave),
@@ -505,7 +509,7 @@ def _build(density: float) -> tuple[np.ndarray, ...]:
         if p >= 0:
             bind_local[j] = np.linalg.solve(bind_world[p], bind_world[j])
     inverse_bind = np.linalg.inv(bind_world)
-    joints, weights = _skin_weights(verts - np.array([0, 0, dz]), faces, parents)
+    joints, weights = _skin_weights(verts - np.array([0, 0, dz]), faces, parents, density)
     return parents, bind_local, inverse_bind, verts.astype(np.float32), normals.astype(np.float32), faces, joints, \
         weights
 
