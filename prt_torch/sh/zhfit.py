@@ -8,18 +8,19 @@ A lobe is an axis ``s_k`` and per-band, per-channel coefficients ``g_k (n, ch)``
    by ``seed``), vectorised: per band and channel the closed-form coefficient of eq. 15,
    ``g_l(s) = sum_m y_lm(s) r_lm / sum_m y_lm(s)^2`` (the denominator is ``(2l+1)/(4 pi)`` by the
    addition theorem), and the residual ``|r|^2 - sum_{l,c} g_l^2 (2l+1)/(4 pi)``; keep the best.
-2. **Refinement** of direction and coefficients jointly with ``scipy.optimize.minimize`` (L-BFGS-B,
-   finite-difference gradients, as the paper: "not necessary to use gradients"). The coefficients
-   are eliminated in closed form (variable projection: for a fixed direction eq. 15 *is* the optimal
-   ``g``), so the optimiser moves only the 2 tangent-plane coordinates of ``s``; the minimiser is
-   the joint ``(s, g)`` minimiser, found faster and more robustly than with ``2 + n*ch`` free variables.
+2. **Refinement** of direction and coefficients jointly with ``scipy.optimize.minimize`` (L-BFGS-B).
+   The coefficients are eliminated in closed form (variable projection: for a fixed direction eq. 15
+   *is* the optimal ``g``), so the optimiser moves only the 2 tangent-plane coordinates of ``s``; its
+   minimiser is the joint ``(s, g)`` minimiser, found faster and more robustly than with ``2 + n*ch``
+   free variables. Gradients are complex-step derivatives (exact to round-off, no hand-written SH
+   derivatives), so a pure lobe is recovered to ~1e-15 rather than the ~1e-8 of finite differences.
 3. ``r -= zh_to_sh(g, s)``.
 
 With ``joint=True`` (default) a final polish re-optimises all ``K`` directions together, with the
 ``K`` lobes' coefficients per band and channel solved by (slightly ridge-regularised) least squares;
-it is kept only if it lowers the error (ridge 1e-5 by default; see :func:`_joint_solve`).
-The result reports ``rel_error = |fit - l| / |l|`` over all
-coefficients and channels.
+it is kept only if it lowers the error (ridge 1e-5 by default; see :func:`_joint_solve`). On the
+project's env maps it cuts the 3-lobe error 2-50x. The result reports ``rel_error = |fit - l| / |l|``
+over all coefficients and channels.
 """
 
 from __future__ import annotations
