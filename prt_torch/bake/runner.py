@@ -295,7 +295,7 @@ def _run_dask(tasks: list[BlockTask], scheduler: str) -> Iterator[BlockStats]:
     except ImportError:
         raise PrtError("the Dask backend needs dask[distributed]") from None
     try:
-        client = Client(scheduler, timeout="20s", set_as_default=False)
+        client = Client(scheduler, timeout="20s")
     except OSError as exc:
         raise PrtError(f"cannot connect to the Dask scheduler at {scheduler} ({exc})") from None
     try:
