@@ -89,11 +89,13 @@ def dataset_info(path: str | Path) -> DatasetInfo:
 
 
 def load_split(path: str | Path, split: str, extra: tuple[str, ...] = (),
-               max_frames: int | None = None) -> SplitData:
+               max_frames: int | None = None, contiguous: bool = False) -> SplitData:
     """Frames of ``split`` (a key of the ``splits`` attribute) that are baked (``done``).
 
     ``extra`` names further per-frame arrays to load (``positions``, ``normals``, ``frames``,
-    ``transfer``); ``max_frames`` keeps an evenly strided subset (for quick evaluation).
+    ``transfer``); ``max_frames`` keeps an evenly strided subset (for quick evaluation), or with
+    ``contiguous`` the first ``max_frames / n_clips`` consecutive frames of each clip (so
+    frame-to-frame measures stay meaningful).
     """
     g = _open(path)
     info = dataset_info(path)
@@ -108,7 +110,13 @@ def load_split(path: str | Path, split: str, extra: tuple[str, ...] = (),
     if len(idx) == 0:
         raise PrtError(f"{path}: split '{split}' has no baked frames")
     if max_frames is not None and len(idx) > max_frames:
-        idx = idx[np.linspace(0, len(idx) - 1, max_frames).round().astype(np.int64)]
+        if contiguous:
+            ids = clip_id[idx]
+            per = max(2, -(-max_frames // len(np.unique(ids))))
+            keep = np.concatenate([idx[ids == c][:per] for c in np.unique(ids)])
+            idx = np.sort(keep)
+        else:
+            idx = idx[np.linspace(0, len(idx) - 1, max_frames).round().astype(np.int64)]
     pose = np.asarray(g["pose"].oindex[idx], dtype=np.float32)
     vis = np.asarray(g["visibility"].oindex[idx], dtype=np.float32)
     check(bool(np.isfinite(pose).all()), f"{path}: pose features of split '{split}' contain NaN or Inf")
