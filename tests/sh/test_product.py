@@ -106,6 +106,18 @@ def test_gaunt_basic_properties() -> None:
     assert gaunt_tensor(8) is t
 
 
+def test_nonzero_entries_have_even_abs_m_sum() -> None:
+    """The fact that makes sympy's (-1)^m sign cancel: |m1| + |m2| + |m3| is even wherever Gamma != 0."""
+    t = gaunt_tensor(8)
+    absm = np.array([abs(m) for _, m in _lm(8)])
+    assert ((absm[t.indices].sum(axis=1) % 2) == 0).all()
+    # ...while the bands alone allow odd |m| sums (so the check above is not vacuous)
+    g = t.dense()
+    i, j, k = sh_index(1, 1), sh_index(1, 0), sh_index(2, 1)  # |m| sum 2: non-zero
+    assert g[i, j, k] != 0
+    assert g[sh_index(1, 1), sh_index(1, 1), sh_index(2, 1)] == 0  # |m| sum 3: zero
+
+
 def test_gaunt_vs_independent_lebedev_quadrature_order8() -> None:
     """Gamma was computed with a Gauss product rule; re-integrate with a Lebedev rule (different nodes)."""
     dirs, w = sphere_quadrature(21)
