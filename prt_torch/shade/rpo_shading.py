@@ -33,8 +33,8 @@ METHODS: tuple[str, ...] = ("matrix", "product", "fused")
 
 @dataclass
 class RPOTensors:
-    """Torch tensors of an RPO: ``M (k, C, C)``, ``u (k, C)``, ``w (k, C)``, ``tint (3,)``, and the Gaunt
-    gather tables ``I, J (C, P)`` int64, ``G (C, P)``."""
+    """Torch tensors of an RPO: ``M (k, C, C)``, ``u (k, C)``, ``w (k, C)``, ``tint (3,)``, the Gaunt
+    gather tables ``I, J (C, P)`` int64, ``G (C, P)``, and the SH ``order`` (a Python int)."""
 
     M: torch.Tensor
     u: torch.Tensor
@@ -43,11 +43,7 @@ class RPOTensors:
     I: torch.Tensor
     J: torch.Tensor
     G: torch.Tensor
-
-    @property
-    def order(self) -> int:
-        """SH order ``n``."""
-        return int(round(self.u.shape[1] ** 0.5))
+    order: int
 
     @classmethod
     def from_rpo(cls, rpo: RPO, dtype: Any = torch.float32, device: Any = None) -> RPOTensors:
@@ -59,7 +55,7 @@ class RPOTensors:
         def t(a: np.ndarray) -> torch.Tensor:
             return torch.as_tensor(np.asarray(a), dtype=dtype, device=device)
 
-        return cls(t(rpo.M), t(rpo.u), t(rpo.w), t(rpo.tint), I, J, G)
+        return cls(t(rpo.M), t(rpo.u), t(rpo.w), t(rpo.tint), I, J, G, rpo.order)
 
 
 def _check_inputs(v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor, c: int) -> None:
@@ -92,7 +88,7 @@ def shade_rpo(v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor, rp
     """
     if isinstance(rpo, RPO):
         rpo = RPOTensors.from_rpo(rpo, v.dtype, v.device)
-    c = rpo.u.shape[1]
+    c = rpo.order * rpo.order
     if check:
         _check_inputs(v, l_local, wo_local, c)
         if method not in METHODS:
@@ -130,6 +126,7 @@ class RPOShader(nn.Module):
         for name in ("M", "u", "w", "tint", "I", "J", "G"):
             self.register_buffer(name, getattr(t, name))
         self.name = rpo.name
+        self.order = rpo.order
 
     def set_rpo(self, rpo: RPO) -> None:
         """Swap in another RPO of the same order and term count (buffers are replaced in place)."""
@@ -142,7 +139,7 @@ class RPOShader(nn.Module):
 
     def tensors(self) -> RPOTensors:
         """The buffers as :class:`RPOTensors`."""
-        return RPOTensors(self.M, self.u, self.w, self.tint, self.I, self.J, self.G)
+        return RPOTensors(self.M, self.u, self.w, self.tint, self.I, self.J, self.G, self.order)
 
     def forward(self, v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor) -> torch.Tensor:
         return shade_rpo(v, l_local, wo_local, self.tensors(), self.method, check=False)

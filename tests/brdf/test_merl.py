@@ -92,7 +92,7 @@ def test_analytic_roundtrip_and_rpo(tmp_path: Path) -> None:
     fa, fm = fn(ra), fn(rm)
     diff = math.sqrt((ww * (fa - fm) ** 2).sum() / (ww * fa**2).sum())
     print(f"separable RGB approximations differ by {diff:.4f} (relative L2)")
-    assert diff < 0.1, diff
+    assert diff < 0.03, diff
 
 
 def test_bad_files(tmp_path: Path) -> None:
