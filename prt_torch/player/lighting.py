@@ -38,30 +38,52 @@ class Lighting:
         return Lighting(dirs, self.coeffs, rotate_lighting(self.sh, R), self.rel_error, self.source)
 
 
-def lighting_from_sh(sh: np.ndarray, n_lobes: int = 3, source: str = "sh") -> Lighting:
-    """Fit ``n_lobes`` ZH lobes to SH lighting ``(C, 3)``."""
+#: sun power of the default procedural sky (moderate, so that sky-lit and shadowed parts stay visible)
+DEFAULT_SUN_COLOR = (8.0, 7.4, 6.4)
+#: sun direction of the default sky: high, front-right of the default camera (which looks along +y)
+DEFAULT_SUN_DIRECTION = (0.45, -0.55, 0.70)
+
+
+def sinc_window(order: int) -> np.ndarray:
+    """``(C,)`` Lanczos sigma factors ``sinc(l / order)`` per coefficient: damps the ringing (negative
+    lobes) of truncated SH lighting such as a sun (Sloan, "Stupid SH tricks", sec. 5)."""
+    from prt_torch.sh.basis import band_of
+
+    return np.sinc(band_of(order) / order)
+
+
+def lighting_from_sh(sh: np.ndarray, n_lobes: int = 3, source: str = "sh", window: bool = True) -> Lighting:
+    """Fit ``n_lobes`` ZH lobes to SH lighting ``(C, 3)`` (windowed with :func:`sinc_window` by default)."""
+    from prt_torch.sh.basis import order_from_coeffs
     from prt_torch.sh.zhfit import fit_zh_lobes
 
     sh = np.asarray(sh, dtype=np.float64)
     if sh.ndim != 2 or sh.shape[1] != 3:
         raise PrtError(f"SH lighting must have shape (C, 3), got {sh.shape}")
+    if not np.isfinite(sh).all():
+        raise PrtError("SH lighting contains NaN or Inf")
+    if window:
+        sh = sh * sinc_window(order_from_coeffs(sh.shape[0]))[:, None]
     lobes = fit_zh_lobes(sh, n_lobes)
     return Lighting(np.ascontiguousarray(lobes.dirs, dtype=np.float32),
                     np.ascontiguousarray(lobes.coeffs, dtype=np.float32), sh, float(lobes.rel_error), source)
 
 
-def load_lighting(env: str | os.PathLike[str] | None, order: int, n_lobes: int = 3) -> Lighting:
+def load_lighting(env: str | os.PathLike[str] | None, order: int, n_lobes: int = 3, window: bool = True) -> Lighting:
     """Lighting for the player: an HDR env map file, or ``None`` for the procedural sun + sky."""
     if env is None or str(env) in ("", "sky"):
         from prt_torch.light import sources
 
-        return lighting_from_sh(sources.sky_sh(order), n_lobes, source="procedural sky")
+        sun = np.array(DEFAULT_SUN_DIRECTION) / np.linalg.norm(DEFAULT_SUN_DIRECTION)
+        sky = sources.sky_sh(order, sun_direction=sun, sun_color=DEFAULT_SUN_COLOR)
+        return lighting_from_sh(sky, n_lobes, source="procedural sky",
+                                window=window)
     from prt_torch.light.envmap import envmap_to_sh, load_envmap
 
     path = Path(env)
     if not path.is_file():
         raise PrtError(f"environment map not found: {path}")
-    return lighting_from_sh(envmap_to_sh(load_envmap(path), order), n_lobes, source=str(path))
+    return lighting_from_sh(envmap_to_sh(load_envmap(path), order), n_lobes, source=str(path), window=window)
 
 
 def hemisphere_visibility(order: int) -> np.ndarray:

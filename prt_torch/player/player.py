@@ -95,7 +95,7 @@ class Player:
         """Camera position (world): orbiting the rest-pose centre, in front (-y) at azimuth 0."""
         a, e = self.camera_azimuth, self.camera_elevation
         d = np.array([np.sin(a) * np.cos(e), -np.cos(a) * np.cos(e), np.sin(e)])
-        return (self.center + 1.5 * self.radius * d).astype(np.float32)
+        return (self.center + 1.9 * self.radius * d).astype(np.float32)
 
     def set_brdf(self, name: str) -> None:
         """Swap the material (an RPO of the run's catalogue, or an RPO file)."""

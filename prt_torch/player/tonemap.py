@@ -9,7 +9,7 @@ from prt_torch.errors import PrtError
 GAMMA = 2.2
 
 
-def auto_exposure(radiance: np.ndarray, percentile: float = 98.0, target: float = 0.8) -> float:
+def auto_exposure(radiance: np.ndarray, percentile: float = 95.0, target: float = 0.9) -> float:
     """Exposure that maps the ``percentile`` of the per-vertex max channel to ``target``."""
     r = np.asarray(radiance, dtype=np.float32)
     if r.shape[-1] != 3 or not np.isfinite(r).all():

@@ -1,0 +1,199 @@
+"""``prt bench play [RUN]``: frames/s of the run-time path, its steps, and side-by-side references.
+
+Measured in one run on the exported run (default ``runs/demo``: built-in character ~11.7k vertices,
+order 4, MLP model) with an 8-term RPO (``phong``):
+
+* per-frame path (numpy FK + LBS + frames + pose features -> ORT -> radiance), fused graph and
+  split graphs (visibility then shading), interleaved frame by frame; median over ``--frames``;
+* (a) ray tracing the same frames' visibility with Embree (``prt_torch.bake.frame.bake_frame``, the
+  bake's per-frame path with the run's ``n_rays``) and shading it: ``speedup_vs_raytrace``;
+* (b) the model's bytes (ONNX initializers + RPO tensors) over the machine's measured copy bandwidth
+  (large ``numpy.copyto``): ``bandwidth_fraction = stream time / frame time`` (1.0 = the frame costs
+  no more than streaming the weights once);
+* batched playback of 32 characters per call: character-frames/s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HELP = "Player frames/s (fused vs split), per-step times, speed-up vs Embree ray tracing, bandwidth bound, B=32."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", nargs="?", default="runs/demo", help="exported run (default runs/demo; `prt demo`)")
+    parser.add_argument("--frames", type=int, default=200, help="timed frames per mode (default 200)")
+    parser.add_argument("--warmup", type=int, default=20)
+    parser.add_argument("--brdf", default="phong", help="RPO of the run (default phong, 8 terms)")
+    parser.add_argument("--raytrace-frames", type=int, default=3, help="frames ray-traced for the baseline")
+    parser.add_argument("--batch", type=int, default=32, help="characters per call for the batched figure")
+    parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _median_ms(v: list[float]) -> float:
+    return float(np.median(v) * 1e3)
+
+
+def copy_bandwidth(n_bytes: int = 1 << 28, repeats: int = 5) -> float:
+    """Best-of-``repeats`` bytes/s of ``numpy.copyto`` between two ``n_bytes`` float32 buffers."""
+    a = np.ones(n_bytes // 4, dtype=np.float32)
+    b = np.empty_like(a)
+    np.copyto(b, a)
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        np.copyto(b, a)
+        best = min(best, time.perf_counter() - t0)
+    return a.nbytes / best
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from prt_torch.errors import check
+    from prt_torch.export.onnx_file import initializer_bytes
+    from prt_torch.player import Player
+
+    console = Console(stderr=True)
+    run_dir = Path(args.run)
+    check(args.frames >= 5 and args.warmup >= 1, "--frames must be >= 5 and --warmup >= 1")
+    player = Player(run_dir, brdf=args.brdf, graph="fused", threads=args.threads)
+    meta = player.bundle.meta
+    clips = list(player.character.clips)
+    check(bool(clips), f"{run_dir}: the character has no clips")
+    clip = max(clips, key=lambda c: player.character.clip(c).num_frames)
+    locals_ = player.clip_locals(clip)
+    n_clip = len(locals_)
+
+    # -- per-frame path, fused vs split, interleaved -----------------------------------------
+    steps: dict[str, dict[str, list[float]]] = {"fused": {"pose": [], "fused": [], "total": []},
+                                                "split": {"pose": [], "visibility": [], "shading": [], "total": []}}
+    with console.status(f"timing {args.frames} frames per mode on '{clip}' ..."):
+        for i in range(args.warmup + args.frames):
+            loc = locals_[i % n_clip:i % n_clip + 1]
+            for mode in ("fused", "split"):
+                player.graph = mode
+                t0 = time.perf_counter()
+                state = player.pose(loc)
+                t1 = time.perf_counter()
+                if mode == "fused":
+                    player.shade(state, checked=False)
+                    t2 = time.perf_counter()
+                    parts = {"pose": t1 - t0, "fused": t2 - t1}
+                else:
+                    vis = player.visibility(state.features, checked=False)
+                    t2 = time.perf_counter()
+                    player.shade(state, visibility=vis, checked=False)
+                    t3 = time.perf_counter()
+                    parts = {"pose": t1 - t0, "visibility": t2 - t1, "shading": t3 - t2}
+                if i >= args.warmup:
+                    for k, v in parts.items():
+                        steps[mode][k].append(v)
+                    steps[mode]["total"].append(sum(parts.values()))
+    med = {m: {k: _median_ms(v) for k, v in s.items()} for m, s in steps.items()}
+    best_mode = min(med, key=lambda m: med[m]["total"])
+    frame_s = med[best_mode]["total"] / 1e3
+    fps = 1.0 / frame_s
+
+    # -- (a) Embree ray tracing of the same frames + shading -----------------------------------
+    from prt_torch.bake.embree import ray_offset
+    from prt_torch.bake.frame import RaySet, bake_frame
+
+    ds_attrs = _dataset_attrs(run_dir)
+    n_rays = int(ds_attrs.get("n_rays") or 128)
+    rel_offset = float((ds_attrs.get("bake") or {}).get("ray_offset", 1e-4))
+    rays = RaySet.make(n_rays, player.order, player.bundle.n_vertices, seed=0)
+    offset = ray_offset(player.character.rest_vertices, rel_offset)
+    faces = player.character.faces
+    rt: list[float] = []
+    rt_model: list[float] = []
+    player.graph = best_mode
+    with console.status(f"ray-tracing {args.raytrace_frames} frames with Embree ({n_rays} rays/vertex) ..."):
+        for j in range(args.raytrace_frames):
+            loc = locals_[(j * 7) % n_clip:(j * 7) % n_clip + 1]
+            t0 = time.perf_counter()
+            state = player.pose(loc)
+            res = bake_frame(state.positions_vx3(0), state.frames_vx33()[0], faces, rays, offset)
+            player.shade(state, visibility=res.visibility[None], checked=False)
+            rt.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            state = player.pose(loc)
+            player.shade(state, checked=False)
+            rt_model.append(time.perf_counter() - t0)
+    raytrace_s = float(np.median(rt))
+    speedup = raytrace_s / float(np.median(rt_model))
+
+    # -- (b) bandwidth bound --------------------------------------------------------------------
+    with console.status("measuring copy bandwidth ..."):
+        bw = copy_bandwidth()
+    files = meta["files"]
+    if best_mode == "fused":
+        model_bytes = initializer_bytes(run_dir / files["fused"])
+    else:
+        model_bytes = initializer_bytes(run_dir / files["visibility"]) + initializer_bytes(run_dir / files["shading"])
+    model_bytes += player.rpo.M.nbytes + player.rpo.w.nbytes + player.lighting.coeffs.nbytes
+    stream_s = model_bytes / bw
+    bandwidth_fraction = stream_s / frame_s
+
+    # -- batched: B characters per call ----------------------------------------------------------
+    b = args.batch
+    idx = np.arange(b) * 3 % n_clip
+    batch_locals = locals_[idx]
+    bt: list[float] = []
+    with console.status(f"batched playback, B={b} ..."):
+        for i in range(3 + max(5, args.frames // 20)):
+            t0 = time.perf_counter()
+            state = player.pose(batch_locals)
+            player.shade(state, checked=False)
+            if i >= 3:
+                bt.append(time.perf_counter() - t0)
+    batch_s = float(np.median(bt))
+    player.close()
+
+    out: dict[str, Any] = {
+        "run": str(run_dir), "clip": clip, "n_vertices": player.bundle.n_vertices, "sh_order": player.order,
+        "model_kind": meta["model_kind"], "brdf": player.rpo.name, "brdf_terms": int(player.rpo.M.shape[0]),
+        "threads": args.threads, "frames": args.frames,
+        "fps": fps, "frame_ms": frame_s * 1e3, "best_graph": best_mode,
+        "fps_fused": 1e3 / med["fused"]["total"], "fps_split": 1e3 / med["split"]["total"],
+        "steps_ms": med,
+        "raytrace_ms": raytrace_s * 1e3, "raytrace_n_rays": n_rays, "speedup_vs_raytrace": speedup,
+        "copy_bandwidth_gb_s": bw / 1e9, "model_bytes": int(model_bytes), "stream_ms": stream_s * 1e3,
+        "bandwidth_fraction": bandwidth_fraction,
+        "batch": b, "batched_call_ms": batch_s * 1e3, "batched_character_fps": b / batch_s,
+    }
+    if args.json:
+        print(json.dumps(out, indent=2, sort_keys=True))
+        return 0
+    t = Table(title=f"prt bench play: {run_dir} ({out['n_vertices']} vertices, order {out['sh_order']}, "
+                    f"{out['model_kind']}, {out['brdf']} k={out['brdf_terms']}, {args.threads} ORT threads)")
+    t.add_column("measure")
+    t.add_column("value", justify="right")
+    for m in ("fused", "split"):
+        parts = ", ".join(f"{k} {v:.3f}" for k, v in med[m].items() if k != "total")
+        t.add_row(f"{m} graph: ms/frame ({parts})", f"{med[m]['total']:.3f} ms = {1e3 / med[m]['total']:.0f} fps")
+    t.add_row(f"Embree ray trace ({n_rays} rays/vertex) + shading, per frame", f"{raytrace_s * 1e3:.0f} ms")
+    t.add_row("speed-up of the model path over ray tracing (same frames)", f"{speedup:.0f}x")
+    t.add_row(f"model bytes {model_bytes / 1e6:.2f} MB at copy bandwidth {bw / 1e9:.1f} GB/s",
+              f"{stream_s * 1e3:.3f} ms")
+    t.add_row("bandwidth fraction (stream time / frame time)", f"{bandwidth_fraction:.3f}")
+    t.add_row(f"batched B={b}: per call", f"{batch_s * 1e3:.1f} ms = {b / batch_s:.0f} character-frames/s")
+    console.print(t)
+    return 0
+
+
+def _dataset_attrs(run_dir: Path) -> dict[str, Any]:
+    path = run_dir / "dataset.zarr"
+    if not path.exists():
+        return {}
+    import zarr
+
+    return dict(zarr.open_group(str(path), mode="r").attrs)
