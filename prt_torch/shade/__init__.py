@@ -3,9 +3,15 @@
 
 from prt_torch.shade.cosine import cosine_product_matrix
 from prt_torch.shade.diffuse import shade_diffuse_prt
-from prt_torch.shade.gather_product import gather_product, gaunt_gather_tables, gaunt_gather_tensors
 from prt_torch.shade.lobes import rotate_lobes_to_frames
 from prt_torch.shade.rpo_shading import METHODS, RPOShader, RPOTensors, shade_rpo
+from prt_torch.shade.triple_product import (
+    gather_product,
+    gaunt_flat,
+    gaunt_gather_tables,
+    gaunt_gather_tensors,
+    outer_product_sh,
+)
 
 __all__ = [
     "METHODS",
@@ -13,8 +19,10 @@ __all__ = [
     "RPOTensors",
     "cosine_product_matrix",
     "gather_product",
+    "gaunt_flat",
     "gaunt_gather_tables",
     "gaunt_gather_tensors",
+    "outer_product_sh",
     "rotate_lobes_to_frames",
     "shade_diffuse_prt",
     "shade_rpo",

@@ -8,9 +8,11 @@ All quantities are in each vertex's local frame (z = normal): visibility ``v (..
             = tint_c sum_b W_b  u_b . (l_c x v)               "product": 3 SH products, then k dots
             = tint_c        l_c . (u~ x v),  u~ = sum_b W_b u_b   "fused": ONE SH product for all k and RGB
 
-(``Gamma`` is symmetric, so ``l . (M(u) v) = u . (l x v) = l . (u x v)``). Products use dense gathers of
-the Gaunt non-zeros (:mod:`prt_torch.shade.gather_product`), never ``torch.sparse``, so all three export to
-ONNX. ``prt bench shade`` measures which is fastest.
+(``Gamma`` is symmetric, so ``l . (M(u) v) = u . (l x v) = l . (u x v)``). ``product`` and ``fused`` form
+the SH product as an outer product times the flattened dense Gaunt tensor (one GEMM);
+``fused_gather`` is ``fused`` with the product over the Gaunt non-zeros only (dense index gathers,
+:mod:`prt_torch.shade.triple_product`). No ``torch.sparse``: all export to ONNX. ``prt bench shade``
+measures them: on CPU (order 4, k = 8, 1 thread) ``fused`` is fastest, the sparse gather the slowest.
 """
 
 from __future__ import annotations
@@ -25,16 +27,17 @@ from torch import nn
 from prt_torch.brdf.rpo import RPO
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import check_directions, sh_basis
-from prt_torch.shade.gather_product import gather_product, gaunt_gather_tensors
+from prt_torch.shade.triple_product import gather_product, gaunt_flat, gaunt_gather_tensors, outer_product_sh
 
-Method = Literal["matrix", "product", "fused"]
-METHODS: tuple[str, ...] = ("matrix", "product", "fused")
+Method = Literal["matrix", "product", "fused", "fused_gather"]
+METHODS: tuple[str, ...] = ("matrix", "product", "fused", "fused_gather")
 
 
 @dataclass
 class RPOTensors:
     """Torch tensors of an RPO: ``M (k, C, C)``, ``u (k, C)``, ``w (k, C)``, ``tint (3,)``, the Gaunt
-    gather tables ``I, J (C, P)`` int64, ``G (C, P)``, and the SH ``order`` (a Python int)."""
+    gather tables ``I, J (C, P)`` int64, ``G (C, P)``, the flattened dense Gaunt tensor ``gamma (C*C, C)``
+    and the SH ``order`` (a Python int)."""
 
     M: torch.Tensor
     u: torch.Tensor
@@ -43,6 +46,7 @@ class RPOTensors:
     I: torch.Tensor
     J: torch.Tensor
     G: torch.Tensor
+    gamma: torch.Tensor
     order: int
 
     @classmethod
@@ -55,7 +59,7 @@ class RPOTensors:
         def t(a: np.ndarray) -> torch.Tensor:
             return torch.as_tensor(np.asarray(a), dtype=dtype, device=device)
 
-        return cls(t(rpo.M), t(rpo.u), t(rpo.w), t(rpo.tint), I, J, G, rpo.order)
+        return cls(t(rpo.M), t(rpo.u), t(rpo.w), t(rpo.tint), I, J, G, t(gaunt_flat(rpo.order)), rpo.order)
 
 
 def _check_inputs(v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor, c: int) -> None:
@@ -83,7 +87,7 @@ def shade_rpo(v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor, rp
         l_local: ``(..., V, C, 3)`` local-frame SH lighting (RGB).
         wo_local: ``(..., V, 3)`` unit view directions in the local frames.
         rpo: :class:`RPOTensors` (or an :class:`RPO`, converted to ``v``'s dtype).
-        method: ``"matrix"``, ``"product"`` or ``"fused"`` (default, fastest on CPU).
+        method: ``"matrix"``, ``"product"``, ``"fused"`` (default, fastest on CPU) or ``"fused_gather"``.
         check: validate the inputs.
     """
     if isinstance(rpo, RPO):
@@ -99,12 +103,17 @@ def shade_rpo(v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor, rp
         t = torch.einsum("...bi,...ic->...bc", p, l_local)  # (..., V, k, 3)
         out = (W.unsqueeze(-1) * t).sum(-2)
     elif method == "product":
-        lv = gather_product(l_local.transpose(-1, -2), v.unsqueeze(-2), rpo.I, rpo.J, rpo.G)  # (..., V, 3, C)
+        lt = l_local.transpose(-1, -2)  # (..., V, 3, C)
+        lv = outer_product_sh(lt, v.unsqueeze(-2).expand_as(lt), rpo.gamma)  # (..., V, 3, C)
         t = lv @ rpo.u.T  # (..., V, 3, k)
         out = (t * W.unsqueeze(-2)).sum(-1)
-    else:
+    elif method == "fused":
         u_view = W @ rpo.u  # (..., V, C)
-        q = gather_product(u_view, v, rpo.I, rpo.J, rpo.G)  # (..., V, C)
+        q = outer_product_sh(u_view, v, rpo.gamma)  # (..., V, C)
+        out = (q.unsqueeze(-1) * l_local).sum(-2)
+    else:  # fused_gather
+        u_view = W @ rpo.u
+        q = gather_product(u_view, v, rpo.I, rpo.J, rpo.G)
         out = (q.unsqueeze(-1) * l_local).sum(-2)
     return out * rpo.tint
 
@@ -123,7 +132,7 @@ class RPOShader(nn.Module):
         self.method: Method = method
         self._dtype = dtype
         t = RPOTensors.from_rpo(rpo, dtype)
-        for name in ("M", "u", "w", "tint", "I", "J", "G"):
+        for name in ("M", "u", "w", "tint", "I", "J", "G", "gamma"):
             self.register_buffer(name, getattr(t, name))
         self.name = rpo.name
         self.order = rpo.order
@@ -139,7 +148,7 @@ class RPOShader(nn.Module):
 
     def tensors(self) -> RPOTensors:
         """The buffers as :class:`RPOTensors`."""
-        return RPOTensors(self.M, self.u, self.w, self.tint, self.I, self.J, self.G, self.order)
+        return RPOTensors(self.M, self.u, self.w, self.tint, self.I, self.J, self.G, self.gamma, self.order)
 
     def forward(self, v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor) -> torch.Tensor:
         return shade_rpo(v, l_local, wo_local, self.tensors(), self.method, check=False)
