@@ -134,6 +134,16 @@ def test_layouts_agree_on_the_same_scene(tmp_path: Path) -> None:
     np.testing.assert_allclose(a.to_sh(3), b.to_sh(3), atol=4e-3 * np.abs(sh).max())
 
 
+def test_light_package_imports_without_torch(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    write_pfm(tmp_path / "m.pfm", np.ones((8, 16, 3), np.float32))
+    code = ("import sys; from prt_torch.light import load_envmap, sky_sh; load_envmap(sys.argv[1]).to_sh(3); "
+            "sky_sh(3, height=8); assert 'torch' not in sys.modules, 'torch imported'")
+    subprocess.run([sys.executable, "-c", code, str(tmp_path / "m.pfm")], check=True)
+
+
 def test_bad_inputs(tmp_path: Path) -> None:
     with pytest.raises(PrtError, match="shape"):
         EnvMap(np.ones((4, 8)), "latlong")
