@@ -148,12 +148,17 @@ def build_rpo(brdf: BRDF, order: int = 4, k: int = 8, n_theta: int = DEFAULT_N_T
     check_order(order, MAX_PRODUCT_ORDER)
     if not isinstance(brdf, BRDF):
         raise PrtError(f"build_rpo needs a BRDF, got {type(brdf).__name__}")
+    from threadpoolctl import threadpool_limits
+
     t0 = time.perf_counter()
-    dirs, _ = hemisphere_rule(n_theta, n_phi)
-    table = tabulate(brdf, dirs, dirs)
-    factors = factor_brdf(brdf, k, n_theta, n_phi, table=table)
-    u, w = project_factors(factors, order)
-    sh_err = sh_factor_error(factors, u, w, table)
+    # single-threaded BLAS: the randomized SVD's small QR/LU/SVD steps run ~5x slower when BLAS threads
+    # contend for busy cores (measured on the 2-core CI machine), and one core is plenty for 1152^2 tables
+    with threadpool_limits(limits=1):
+        dirs, _ = hemisphere_rule(n_theta, n_phi)
+        table = tabulate(brdf, dirs, dirs)
+        factors = factor_brdf(brdf, k, n_theta, n_phi, table=table)
+        u, w = project_factors(factors, order)
+        sh_err = sh_factor_error(factors, u, w, table)
     rpo = RPO.from_factors(u, w, brdf.tint, name or brdf.name, factors.rel_error, sh_err)
     rpo.meta["seconds"] = time.perf_counter() - t0
     return rpo
