@@ -3,7 +3,7 @@
 
 from prt_torch.shade.cosine import cosine_product_matrix
 from prt_torch.shade.diffuse import shade_diffuse_prt
-from prt_torch.shade.lobes import rotate_lobes_to_frames
+from prt_torch.shade.lobes import lobes_in_frames, rotate_lobes_to_frames
 from prt_torch.shade.rpo_shading import METHODS, RPOShader, RPOTensors, shade_rpo
 from prt_torch.shade.triple_product import (
     gather_product,
@@ -22,6 +22,7 @@ __all__ = [
     "gaunt_flat",
     "gaunt_gather_tables",
     "gaunt_gather_tensors",
+    "lobes_in_frames",
     "outer_product_sh",
     "rotate_lobes_to_frames",
     "shade_diffuse_prt",

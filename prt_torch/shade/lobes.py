@@ -67,3 +67,18 @@ def rotate_lobes_to_frames(lobe_dirs: torch.Tensor, lobe_coeffs: torch.Tensor, f
     band = torch.from_numpy(np.asarray(band_of(order))).to(frames.device)
     g = lobe_coeffs.to(dt)[:, band, :]  # (K, C, 3)
     return torch.einsum("...kc,kch->...ch", y, g)
+
+
+def lobes_in_frames(lobes: object, frames: torch.Tensor, check: bool = True) -> torch.Tensor:
+    """:func:`rotate_lobes_to_frames` for a lobe set object with numpy ``dirs (K, 3)`` and ``coeffs (K, n, 3)``
+    (e.g. :class:`prt_torch.sh.zhfit.ZHLobes`); returns ``(..., V, C, 3)`` in the dtype of ``frames``."""
+    if not (hasattr(lobes, "dirs") and hasattr(lobes, "coeffs")):
+        raise PrtError(f"expected a lobe set with dirs and coeffs (e.g. ZHLobes), got {type(lobes).__name__}")
+    if not isinstance(frames, torch.Tensor):
+        raise PrtError(f"frames must be a torch tensor, got {type(frames).__name__}")
+    dirs = torch.as_tensor(np.asarray(lobes.dirs), dtype=torch.float64)
+    coeffs = torch.as_tensor(np.asarray(lobes.coeffs), dtype=torch.float64)
+    if check:
+        check_directions(dirs, "lobe dirs")
+    dirs = dirs / dirs.norm(dim=-1, keepdim=True)  # exact unit length before the cast to frames' dtype
+    return rotate_lobes_to_frames(dirs.to(frames.dtype), coeffs.to(frames.dtype), frames, check=check)

@@ -13,7 +13,7 @@ from prt_torch.light.envmap import load_envmap
 from prt_torch.sh.quadrature import random_rotations
 from prt_torch.sh.rotation import sh_rotation
 from prt_torch.sh.zhfit import fit_zh_lobes
-from prt_torch.shade.lobes import rotate_lobes_to_frames
+from prt_torch.shade.lobes import lobes_in_frames, rotate_lobes_to_frames
 
 MAPS = ["uffizi.hdr", "spiaggia_di_mondello_1k.hdr"]
 
@@ -43,3 +43,6 @@ def test_lobes_in_vertex_frames_vs_rotated_sh(shared_data: Path) -> None:
     exact = np.einsum("vij,jc->vic", sh_rotation(F, 4), sh)  # rotation preserves the fit's L2 error
     err = np.linalg.norm(local - exact, axis=(1, 2)) / np.linalg.norm(sh)
     np.testing.assert_allclose(err, lobes.rel_error, rtol=1e-6)
+    f32 = lobes_in_frames(lobes, torch.from_numpy(F).float())  # the ZHLobes convenience form, float32
+    assert f32.dtype == torch.float32
+    np.testing.assert_allclose(f32.numpy(), local, atol=1e-4 * np.abs(local).max())
