@@ -2,11 +2,15 @@
 
 Geometry: ~1.8 units tall, standing on ``z = 0``, **facing -y** (its left is ``+x``), z up. The
 surface is the zero set of a smooth union (log-sum-exp smooth minimum, radius ``BLEND``) of
-ellipsoids (pelvis, abdomen, chest, head, hands) and tapered capsules (neck, clavicles, limbs, feet),
-extracted with surface nets on a regular grid (spacing ``GRID_SPACING / sqrt(density)``), projected
-back onto the implicit surface by Newton steps and relaxed. The result is closed, 2-manifold,
-genus 0 and outward oriented; ``density=1`` gives ~11-12k vertices, vertex count scales ~linearly
-with ``density``.
+ellipsoids (pelvis, abdomen, chest, head) and tapered capsules (neck, clavicles, limbs, hands,
+feet), extracted with surface nets (ambiguous cells resolved, so always a closed oriented
+manifold; see :mod:`prt_torch.rig.surface_nets`) on a regular grid of spacing
+``GRID_SPACING / sqrt(density)``, projected back onto the implicit surface by Newton steps and
+relaxed tangentially. Below ``MIN_GRID_DENSITY`` the grid would miss wrists and toes, so the
+surface is extracted at that density and decimated (VTK ``vtkDecimatePro``, topology preserving,
+via pyvista). Rest normals are the implicit function's gradients (area-weighted mesh normals for
+decimated meshes). The result is checked to be closed, 2-manifold, genus 0 and outward oriented;
+``density=1`` gives ~11.7k vertices and the count scales ~linearly with ``density``.
 
 Skeleton (21 joints, ``JOINT_NAMES``): pelvis (root) - spine - chest - neck - head; chest -
 clavicle - shoulder - elbow - wrist per side; pelvis - hip - knee - ankle - toe per side. Bind pose:
@@ -42,6 +46,7 @@ import numpy as np
 from prt_torch.errors import check
 from prt_torch.rig.character import Character
 from prt_torch.rig.clip import Clip
+from prt_torch.rig.mesh import vertex_normals
 from prt_torch.rig.rotations import axis_angle_matrix
 from prt_torch.rig.skeleton import forward_kinematics
 from prt_torch.rig.surface_nets import surface_nets
@@ -49,6 +54,7 @@ from prt_torch.rig.surface_nets import surface_nets
 NAME = "builtin-humanoid"
 FPS = 30.0
 GRID_SPACING = 0.0143  # metres at density 1
+MIN_GRID_DENSITY = 0.2  # coarser grids lose wrists and toes; lower densities decimate
 BLEND = 0.018  # smooth-union radius of the implicit surface
 SKIN_FALLOFF = 0.03  # skin weight falloff distance
 ARM_BIND_ELEVATION = 45.0  # degrees from straight down
@@ -198,9 +204,38 @@ def _adjacency(faces: np.ndarray, n: int):  # -> scipy.sparse.csr_matrix, row-no
     return sp.diags(1.0 / np.maximum(deg, 1)) @ a
 
 
+def _check_closed_manifold(faces: np.ndarray, n_vertices: int) -> None:
+    """Every directed edge once and its reverse once (closed, oriented 2-manifold), Euler characteristic 2."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    directed = np.unique(e[:, 0] * n_vertices + e[:, 1])
+    undirected, counts = np.unique(np.sort(e, axis=1) @ np.array([n_vertices, 1]), return_counts=True)
+    ok = directed.size == e.shape[0] and bool(np.all(counts == 2))
+    check(ok and n_vertices - undirected.size + faces.shape[0] == 2,
+          "built-in character surface is not a closed genus-0 manifold (internal error)")
+
+
+def _decimate(verts: np.ndarray, faces: np.ndarray, n_target: int) -> tuple[np.ndarray, np.ndarray]:
+    """Topology-preserving decimation (VTK ``vtkDecimatePro`` via pyvista) down to ~``n_target`` vertices."""
+    import pyvista as pv
+
+    mesh = pv.PolyData(verts, np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
+    out = mesh.decimate_pro(1.0 - n_target / verts.shape[0], preserve_topology=True)
+    return np.asarray(out.points, dtype=np.float64), np.asarray(out.faces).reshape(-1, 4)[:, 1:].astype(np.int64)
+
+
+def _relax(parts: list[_Part], verts: np.ndarray, faces: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """Tangential relaxation: Laplacian steps, each followed by re-projection onto the implicit surface."""
+    lap = _adjacency(faces, verts.shape[0])
+    verts = _project(parts, verts)
+    for _ in range(rounds):
+        verts = _project(parts, verts + 0.5 * (lap @ verts - verts), steps=2)
+    return verts
+
+
 def _mesh(density: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     parts = _parts()
-    h = GRID_SPACING / np.sqrt(density)
+    grid_density = max(density, MIN_GRID_DENSITY)
+    h = GRID_SPACING / np.sqrt(grid_density)
     lo = np.array([-0.75, -0.25, -0.06])
     hi = np.array([0.75, 0.20, 1.86])
     n = np.ceil((hi - lo) / h).astype(int) + 1
@@ -208,12 +243,15 @@ def _mesh(density: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     values = _sdf(parts, grid).reshape(*n)
     verts, faces = surface_nets(values, lo, h)
-    verts = _project(parts, verts)
-    lap = _adjacency(faces, verts.shape[0])
-    for _ in range(3):  # tangential relaxation: Laplacian step then re-projection
-        verts = _project(parts, verts + 0.5 * (lap @ verts - verts), steps=2)
-    g = _sdf_grad(parts, verts)
-    normals = g / np.linalg.norm(g, axis=1, keepdims=True)
+    verts = _relax(parts, verts, faces)
+    if density < grid_density:  # coarser than the grid can resolve (wrists, toes): decimate instead
+        verts, faces = _decimate(verts, faces, int(round(verts.shape[0] * density / grid_density)))
+        verts = _relax(parts, verts, faces)
+        normals = vertex_normals(verts, faces).astype(np.float64)  # the coarse mesh departs from the surface
+    else:
+        g = _sdf_grad(parts, verts)
+        normals = g / np.linalg.norm(g, axis=1, keepdims=True)  # exact normals of the smooth surface
+    _check_closed_manifold(faces, verts.shape[0])
     return verts, faces, normals
 
 

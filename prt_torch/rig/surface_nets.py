@@ -4,6 +4,13 @@ One vertex per grid cell whose corners change sign (the mean of the edge crossin
 sign-changing grid edge joining the four cells around it, split into two triangles along the
 shorter diagonal. Faces are oriented counter-clockwise seen from the positive (outside) side.
 The result is closed when the function is positive on the grid boundary.
+
+Manifoldness: a cell whose inside corners (or outside corners) are not connected through cube
+edges (a checkerboard face or an interior ambiguity) would give a non-manifold edge or vertex.
+Before extraction such cells are made simple by moving their outside corner with the smallest value
+just inside (repeated until none is left; monotone, so it terminates). Vertices are placed from the
+edge crossings, so this only changes the surface at sub-cell scale. With every cell simple each
+cell's patch is a disk and the surface is a closed 2-manifold.
 """
 
 from __future__ import annotations
@@ -11,6 +18,58 @@ from __future__ import annotations
 import numpy as np
 
 from prt_torch.errors import check
+
+_CORNERS = [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)]  # corner k = 4a + 2b + c
+
+
+def _simple_table() -> np.ndarray:
+    """``(256,)`` bool: for each corner-sign pattern, are the inside and the outside corners each connected?"""
+    edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
+
+    def connected(members: list[int]) -> bool:
+        if len(members) <= 1:
+            return True
+        seen, todo = {members[0]}, [members[0]]
+        while todo:
+            k = todo.pop()
+            for i, j in edges:
+                for a, b in ((i, j), (j, i)):
+                    if a == k and b in members and b not in seen:
+                        seen.add(b)
+                        todo.append(b)
+        return len(seen) == len(members)
+
+    return np.array([connected([k for k in range(8) if m >> k & 1]) and connected([k for k in range(8)
+                                                                                   if not m >> k & 1])
+                     for m in range(256)])
+
+
+_SIMPLE = _simple_table()
+
+
+def make_cells_simple(values: np.ndarray) -> np.ndarray:
+    """Copy of ``values (nx, ny, nz)`` where every cell's inside and outside corners are connected (see above).
+
+    Monotone: each round moves, in every non-simple cell, its outside corner with the smallest value
+    just inside. Corners only ever move inside and a cell with all corners inside is simple, so the
+    loop terminates; the surface grows by less than a cell where it was ambiguous.
+    """
+    f = np.array(values, dtype=np.float64)
+    n = np.array(f.shape) - 1
+    offsets = np.array(_CORNERS)
+    while True:
+        inside = f < 0
+        code = np.zeros(tuple(n), dtype=np.int64)
+        for k, (a, b, c) in enumerate(_CORNERS):
+            code |= inside[a:a + n[0], b:b + n[1], c:c + n[2]].astype(np.int64) << k
+        bad = np.argwhere(~_SIMPLE[code])
+        if bad.size == 0:
+            return f
+        idx = bad[:, None, :] + offsets[None]  # (B, 8, 3)
+        val = f[idx[..., 0], idx[..., 1], idx[..., 2]]
+        val[val < 0] = np.inf
+        i, j, k = np.unique(idx[np.arange(len(bad)), np.argmin(val, axis=1)], axis=0).T
+        f[i, j, k] = -1e-9 * np.maximum(1.0, np.abs(f[i, j, k]))
 
 
 def surface_nets(values: np.ndarray, origin: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -20,8 +79,10 @@ def surface_nets(values: np.ndarray, origin: np.ndarray, spacing: float) -> tupl
     """
     f = np.asarray(values, dtype=np.float64)
     check(f.ndim == 3 and min(f.shape) >= 3, f"grid values must be (nx, ny, nz) with every n >= 3, got {f.shape}")
+    check(bool(np.all(np.isfinite(f))), "implicit function values contain NaN or inf")
     check(bool(np.all(f[[0, -1]] > 0) and np.all(f[:, [0, -1]] > 0) and np.all(f[:, :, [0, -1]] > 0)),
           "implicit function must be positive on the grid boundary")
+    f = make_cells_simple(f)
     inside = f < 0
     cell_shape = tuple(n - 1 for n in f.shape)
     acc = np.zeros((*cell_shape, 3))
