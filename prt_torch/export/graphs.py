@@ -150,14 +150,66 @@ class ShadingGraph(nn.Module):
         return (out * rpo_tint.reshape(1, 3, 1)).transpose(1, 2)  # (B, V, 3)
 
 
-class VisibilityGraph(nn.Module):
-    """``pose (B, A) -> visibility (B, V, C)``: a thin wrapper fixing the graph's signature."""
+class CompactUnprojection(nn.Module):
+    """The per-cluster output PCA of a ``VisibilityModel`` without its zero padding.
 
-    def __init__(self, model: nn.Module) -> None:
+    ``OutputUnprojection`` stores one ``(G, Kmax, Lmax)`` basis padded to the largest cluster and the
+    most components; at ~11.7k vertices most of those bytes are zeros, and the run-time cost of the
+    model is streaming its bytes. Here each cluster ``g`` keeps only its used block ``(K_g, L_g)``
+    (one MatMul per cluster, then Concat), and the gather indices are remapped into the compact
+    layout - the same numbers, exactly (only zero rows/columns are dropped).
+    """
+
+    def __init__(self, out: nn.Module) -> None:
+        super().__init__()
+        basis = out.basis.detach().float()
+        gather = out.gather.detach().long()
+        g_count, _, l_max = basis.shape
+        grp, col = gather // l_max, gather % l_max
+        self.k_used: list[int] = []
+        offsets = torch.zeros(g_count, dtype=torch.long)
+        start = 0
+        for g in range(g_count):
+            cols = col[grp == g]
+            l_g = int(cols.max()) + 1 if cols.numel() else 0
+            rows = torch.nonzero(basis[g, :, :l_g].abs().sum(dim=1) > 0).flatten()
+            k_g = int(rows.max()) + 1 if rows.numel() else 0
+            self.register_buffer(f"basis_{g}", basis[g, :k_g, :l_g].contiguous())
+            self.k_used.append(k_g)
+            offsets[g] = start
+            start += l_g
+        self.register_buffer("gather", (offsets[grp] + col).to(torch.int32))
+        self.register_buffer("mean", out.mean.detach().float())
+        self.n_groups = g_count
+        self.n_vertices = int(out.n_vertices)
+        self.n_coeffs = int(out.n_coeffs)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        parts = [z[:, g, : self.k_used[g]] @ getattr(self, f"basis_{g}")
+                 for g in range(self.n_groups) if getattr(self, f"basis_{g}").numel()]
+        y = torch.cat(parts, dim=1)  # (B, sum L_g)
+        out = y.index_select(1, self.gather) + self.mean
+        return out.reshape(z.shape[0], self.n_vertices, self.n_coeffs)
+
+
+class VisibilityGraph(nn.Module):
+    """``pose (B, A) -> visibility (B, V, C)``.
+
+    A ``VisibilityModel`` (``inp``, ``regressor``, ``out`` submodules) is exported with its output
+    unprojection compacted (:class:`CompactUnprojection`); any other module is used as is.
+    """
+
+    def __init__(self, model: nn.Module, compact: bool = True) -> None:
         super().__init__()
         self.model = model
+        self.compact = compact and all(hasattr(model, a) for a in ("inp", "regressor", "out")) \
+            and all(hasattr(model.out, a) for a in ("basis", "gather", "mean"))
+        if self.compact:
+            self.out = CompactUnprojection(model.out)
 
     def forward(self, pose: torch.Tensor) -> torch.Tensor:
+        if self.compact:
+            return self.out(self.model.regressor(self.model.inp(pose)))
         return self.model(pose)
 
 
@@ -166,7 +218,7 @@ class FusedGraph(nn.Module):
 
     def __init__(self, model: nn.Module, order: int, n_terms: int = 8) -> None:
         super().__init__()
-        self.model = model
+        self.model = model if isinstance(model, VisibilityGraph) else VisibilityGraph(model)
         self.shading = ShadingGraph(order, n_terms)
 
     def forward(self, pose: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor, lobe_dirs: torch.Tensor,

@@ -191,7 +191,7 @@ def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: 
     batch = {0: "B"}
     vis_graph = VisibilityGraph(model).eval()
     shade_graph = ShadingGraph(order, n_terms).eval()
-    fused_graph = FusedGraph(model, order, n_terms).eval()
+    fused_graph = FusedGraph(vis_graph, order, n_terms).eval()
 
     # example / parity inputs: held-out poses with their baked frames, a camera, 3 lobes, an RPO
     pose = held["pose"]

@@ -62,12 +62,21 @@ class Player:
         window_size: render size in pixels.
         exposure: fixed exposure; ``None`` picks one from the first frame.
         n_lobes: ZH lobes fitted to the lighting.
+        blas_threads: BLAS threads for the numpy posing path (its GEMMs are tiny; 1 avoids thread
+            start-up and busy-waiting next to onnxruntime's threads). ``None`` leaves BLAS alone.
+            The limit applies process-wide while the player is open (undone by :meth:`close`).
     """
 
     def __init__(self, run_dir: str | os.PathLike[str], env: str | os.PathLike[str] | None = None,
                  brdf: str | None = None, graph: str = "fused", threads: int = 2,
-                 window_size: tuple[int, int] = (480, 640), exposure: float | None = None, n_lobes: int = 3) -> None:
+                 window_size: tuple[int, int] = (480, 640), exposure: float | None = None, n_lobes: int = 3,
+                 blas_threads: int | None = 1) -> None:
         check(graph in GRAPH_MODES, f"unknown graph mode {graph!r}: expected one of {GRAPH_MODES}")
+        self._blas_limit: Any = None
+        if blas_threads is not None:
+            from threadpoolctl import threadpool_limits
+
+            self._blas_limit = threadpool_limits(limits=int(blas_threads), user_api="blas")
         self.bundle = RunBundle(run_dir, threads=threads)
         self.graph = graph
         self.character = self.bundle.character
@@ -288,6 +297,9 @@ class Player:
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        if self._blas_limit is not None:
+            self._blas_limit.restore_original_limits()
+            self._blas_limit = None
 
 
 class _progress:

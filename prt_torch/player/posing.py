@@ -78,8 +78,8 @@ class Poser:
 
         ch = self.character
         local = np.asarray(local, dtype=np.float64)
-        if local.ndim != 4 or local.shape[1:] != (ch.num_joints, 4, 4):
-            raise PrtError(f"local joint transforms must be (B, {ch.num_joints}, 4, 4), got {local.shape}")
+        if local.ndim != 4 or local.shape[1:] != (ch.num_joints, 4, 4) or local.shape[0] < 1:
+            raise PrtError(f"local joint transforms must be (B, {ch.num_joints}, 4, 4) with B >= 1, got {local.shape}")
         if not np.isfinite(local).all():
             raise PrtError("local joint transforms contain NaN or Inf")
         b = local.shape[0]
