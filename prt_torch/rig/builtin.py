@@ -147,21 +147,49 @@ def _parts() -> list[_Part]:
     return P
 
 
-def _part_distances(parts: list[_Part], p: np.ndarray) -> np.ndarray:
-    """Distance-like functions ``(P, N)`` of the parts at points ``p (N, 3)`` (negative inside)."""
-    out = np.empty((len(parts), p.shape[0]))
+_FAR = 1.0  # stand-in distance for parts farther than _CULL from a point (their blend weight is < 1e-3)
+_CULL = 0.15
+
+
+def _part_bounds(parts: list[_Part]) -> np.ndarray:
+    """``(P, 2, 3)`` axis-aligned boxes of the parts."""
+    out = np.empty((len(parts), 2, 3))
     for i, part in enumerate(parts):
+        a, b = np.asarray(part.a), np.asarray(part.b)
+        if part.kind == "capsule":
+            r = max(part.ra, part.rb)
+            out[i] = [np.minimum(a, b) - r, np.maximum(a, b) + r]
+        else:
+            out[i] = [a - b, a + b]
+    return out
+
+
+def _part_distances(parts: list[_Part], p: np.ndarray, cull: bool = False) -> np.ndarray:
+    """Distance-like functions ``(P, N)`` of the parts at points ``p (N, 3)`` (negative inside).
+
+    With ``cull`` a part is only evaluated within ``_CULL`` of its bounding box (``_FAR`` elsewhere).
+    """
+    out = np.full((len(parts), p.shape[0]), _FAR)
+    bounds = _part_bounds(parts)
+    for i, part in enumerate(parts):
+        if cull:
+            sel = np.nonzero(np.all((p >= bounds[i, 0] - _CULL) & (p <= bounds[i, 1] + _CULL), axis=1))[0]
+            q = p[sel]
+        else:
+            sel, q = slice(None), p
         a = np.asarray(part.a)
         b = np.asarray(part.b)
         if part.kind == "capsule":
             ab = b - a
-            t = np.clip((p - a) @ ab / (ab @ ab), 0.0, 1.0)
-            out[i] = np.linalg.norm(p - (a + t[:, None] * ab), axis=1) - (part.ra + t * (part.rb - part.ra))
+            t = np.clip((q - a) @ ab / (ab @ ab), 0.0, 1.0)
+            dv = q - (a + t[:, None] * ab)
+            out[i, sel] = np.sqrt(np.einsum("ij,ij->i", dv, dv)) - (part.ra + t * (part.rb - part.ra))
         else:
-            q = (p - a) / b
-            k0 = np.linalg.norm(q, axis=1)
-            k1 = np.linalg.norm(q / b, axis=1)
-            out[i] = np.where(k1 > 1e-12, k0 * (k0 - 1.0) / np.maximum(k1, 1e-12), -b.min())
+            u = (q - a) / b
+            k0 = np.sqrt(np.einsum("ij,ij->i", u, u))
+            w = u / b
+            k1 = np.sqrt(np.einsum("ij,ij->i", w, w))
+            out[i, sel] = np.where(k1 > 1e-12, k0 * (k0 - 1.0) / np.maximum(k1, 1e-12), -b.min())
     return out
 
 
@@ -173,11 +201,12 @@ def _smooth_union(d: np.ndarray, k: float = BLEND) -> np.ndarray:
 def _sdf(parts: list[_Part], p: np.ndarray, chunk: int = 65536) -> np.ndarray:
     out = np.empty(p.shape[0])
     for s in range(0, p.shape[0], chunk):
-        out[s:s + chunk] = _smooth_union(_part_distances(parts, p[s:s + chunk]))
+        out[s:s + chunk] = _smooth_union(_part_distances(parts, p[s:s + chunk], cull=True))
     return out
 
 
 def _sdf_grad(parts: list[_Part], p: np.ndarray, eps: float = 1e-4) -> np.ndarray:
+    """Central-difference gradient ``(N, 3)``."""
     g = np.empty_like(p)
     for c in range(3):
         e = np.zeros(3)
@@ -186,10 +215,12 @@ def _sdf_grad(parts: list[_Part], p: np.ndarray, eps: float = 1e-4) -> np.ndarra
     return g
 
 
-def _project(parts: list[_Part], p: np.ndarray, steps: int = 3) -> np.ndarray:
+def _project(parts: list[_Part], p: np.ndarray, steps: int = 3, eps: float = 1e-5) -> np.ndarray:
+    """Newton steps onto the zero set (forward-difference gradients)."""
     for _ in range(steps):
-        g = _sdf_grad(parts, p)
-        p = p - (_sdf(parts, p) / np.maximum((g * g).sum(1), 1e-12))[:, None] * g
+        f0 = _sdf(parts, p)
+        g = np.stack([(_sdf(parts, p + e) - f0) / eps for e in np.eye(3) * eps], axis=1)
+        p = p - (f0 / np.maximum((g * g).sum(1), 1e-12))[:, None] * g
     return p
 
 
