@@ -169,6 +169,21 @@ class Character:
         assert nrm is not None
         return pos, nrm
 
+    def scaled(self, factor: float) -> Character:
+        """The same character uniformly scaled by ``factor`` about the world origin (clips included).
+
+        Every transform ``M`` becomes ``S M S^-1`` (``S = diag(f, f, f, 1)``: translations scale, rotations
+        do not), rest vertices scale, normals are unchanged; skinning commutes with the scaling.
+        """
+        check(bool(np.isfinite(factor)) and factor > 0, f"scale factor must be > 0, got {factor}")
+        s = np.diag([factor, factor, factor, 1.0])
+        s_inv = np.diag([1.0 / factor] * 3 + [1.0])
+        clips = {n: Clip(c.name, c.fps, s @ c.local @ s_inv) for n, c in self.clips.items()}
+        return Character(self.name, list(self.joint_names), self.parents.copy(), s @ self.bind_local @ s_inv,
+                         s @ self.inverse_bind @ s_inv, self.rest_vertices * np.float32(factor),
+                         self.rest_normals.copy(), self.faces.copy(), self.joints.copy(), self.weights.copy(), clips,
+                         None if self.joint_limits is None else self.joint_limits.copy())
+
     # -- identity & persistence ----------------------------------------------------------------
     def content_hash(self) -> str:
         """sha256 (hex) of geometry, skeleton and skin weights (not the clips or the name)."""

@@ -16,6 +16,7 @@ class CharacterConfig(BaseModel):
 
     source: str = "builtin"
     density: float = Field(default=1.0, gt=0)  # built-in character only: vertex density factor
+    height: float | None = Field(default=None, gt=0)  # glTF only: rescale to this height (load_gltf(height=...))
     fps: float = Field(default=30.0, gt=0)  # sampling rate for clips
     train_clips: list[str] = Field(default_factory=list)
     heldout_clips: list[str] = Field(default_factory=list)

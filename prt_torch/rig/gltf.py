@@ -159,8 +159,13 @@ def _sample(times: np.ndarray, values: np.ndarray, interp: str, t: np.ndarray, i
     return out
 
 
-def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None = None) -> Character:
-    """Load a skinned glTF 2.0 character (``.glb`` or ``.gltf``) with its animations sampled at ``fps``."""
+def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None = None,
+              height: float | None = None) -> Character:
+    """Load a skinned glTF 2.0 character (``.glb`` or ``.gltf``) with its animations sampled at ``fps``.
+
+    ``height``: if given, the character is uniformly scaled (:meth:`Character.scaled`) so that its rest
+    mesh spans ``height`` units along z (e.g. ``1.8`` for Fox.glb, which is ~80 units tall in the file).
+    """
     import pygltflib
 
     path = Path(path)
@@ -325,6 +330,12 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
             cname += "_"
         clips[cname] = Clip(cname, fps, local)
 
-    return Character(name or path.stem, [nodes[n].name or f"joint_{n}" for n in jnodes], parents, bind_local,
-                     inverse_bind, pos_w.astype(np.float32), nrm_w.astype(np.float32), faces_w, jnt_w,
-                     wgt_w.astype(np.float32), clips)
+    character = Character(name or path.stem, [nodes[n].name or f"joint_{n}" for n in jnodes], parents, bind_local,
+                          inverse_bind, pos_w.astype(np.float32), nrm_w.astype(np.float32), faces_w, jnt_w,
+                          wgt_w.astype(np.float32), clips)
+    if height is not None:
+        check(bool(np.isfinite(height)) and height > 0, f"height must be > 0, got {height}")
+        extent = float(np.ptp(character.rest_vertices[:, 2]))
+        check(extent > 0, f"{path.name}: the rest mesh has no vertical extent to scale")
+        character = character.scaled(height / extent)
+    return character

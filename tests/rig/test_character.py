@@ -87,3 +87,15 @@ def test_rig_imports_without_torch() -> None:
             "c = prt_torch.rig.builtin.make_character(0.05); c.skin_mesh(c.pose('walk'));"
             "assert 'torch' not in sys.modules, 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_scaled_commutes_with_skinning(humanoid: Character) -> None:
+    big = humanoid.scaled(2.5)
+    for name in ("walk", "stretch"):
+        a, na = humanoid.skin_mesh(humanoid.pose(name))
+        b, nb = big.skin_mesh(big.pose(name))
+        np.testing.assert_allclose(b, 2.5 * a, atol=1e-4)
+        np.testing.assert_allclose(nb, na, atol=1e-5)
+        np.testing.assert_allclose(big.pose(name).features, humanoid.pose(name).features, atol=1e-6)
+    with pytest.raises(PrtError, match="scale factor"):
+        humanoid.scaled(-1.0)

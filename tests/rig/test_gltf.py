@@ -302,3 +302,10 @@ def test_rigged_figure_z_up_root(shared_data: Path) -> None:
                                                                   c.joint_names.index(n), 2, 3]))
     w = c.pose(next(iter(c.clips))).world
     assert np.all(w[:, head, 2, 3] > 1.0)
+
+
+def test_height_option(shared_data: Path) -> None:
+    fox = load_gltf(shared_data / "characters" / "Fox.glb", height=1.8)
+    assert np.ptp(fox.rest_vertices[:, 2]) == pytest.approx(1.8, rel=1e-5)
+    pos, _ = fox.skin_mesh(fox.pose("Walk"))
+    assert np.ptp(pos[..., 2], axis=1).max() < 2.0 and np.abs(pos[..., 2].min()) < 0.1
