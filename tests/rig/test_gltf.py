@@ -309,3 +309,56 @@ def test_height_option(shared_data: Path) -> None:
     assert np.ptp(fox.rest_vertices[:, 2]) == pytest.approx(1.8, rel=1e-5)
     pos, _ = fox.skin_mesh(fox.pose("Walk"))
     assert np.ptp(pos[..., 2], axis=1).max() < 2.0 and np.abs(pos[..., 2].min()) < 0.1
+
+
+def test_interleaved_sparse_and_file_normals(tmp_path: Path) -> None:
+    """Strided (interleaved) buffer views, a sparse accessor and normals stored in the file."""
+    import base64
+    import json
+
+    pos, weights, faces = prism_mesh()
+    radial = np.c_[pos[:, :2], np.zeros(len(pos))]
+    nrm = radial / np.linalg.norm(radial, axis=1, keepdims=True)
+    inter = np.concatenate([pos, nrm], axis=1).astype(np.float32)  # (9, 6): stride 24 bytes
+    base_w = np.tile(np.array([1, 0, 0, 0], np.float32), (9, 1))
+    sparse_idx = np.arange(3, 9).astype(np.uint16)
+    sparse_val = np.c_[weights[3:], np.zeros((6, 2))].astype(np.float32)
+    joints = np.tile(np.array([0, 1, 0, 0], np.uint8), (9, 1))
+    w0, w1 = rest_worlds()
+    ibm = np.stack([np.linalg.inv(w0) @ MROOT, np.linalg.inv(w1) @ MROOT]).transpose(0, 2, 1).astype(np.float32)
+    chunks = [inter.tobytes(), base_w.tobytes(), sparse_idx.tobytes() + b"\0\0" * (len(sparse_idx) % 2),
+              sparse_val.tobytes(), joints.tobytes(), faces.astype(np.uint16).tobytes(), ibm.tobytes()]
+    views, blob = [], b""
+    for k, c in enumerate(chunks):
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(c), **({"byteStride": 24} if k == 0
+                                                                                       else {})})
+        blob += c + b"\0" * (-len(c) % 4)
+    doc = {
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"matrix": MROOT.T.reshape(-1).tolist(), "children": [1, 2]}, {"mesh": 0, "skin": 0},
+                  {"name": "arm", "translation": list(ARM_T), "rotation": list(ARM_Q), "children": [3]},
+                  {"name": "j0", "rotation": list(J0_Q), "children": [4]}, {"name": "j1", "translation": list(J1_T)}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1, "WEIGHTS_0": 2, "JOINTS_0": 3},
+                                    "indices": 4}]}],
+        "skins": [{"joints": [3, 4], "inverseBindMatrices": 5}],
+        "accessors": [
+            {"bufferView": 0, "byteOffset": 0, "componentType": 5126, "count": 9, "type": "VEC3"},
+            {"bufferView": 0, "byteOffset": 12, "componentType": 5126, "count": 9, "type": "VEC3"},
+            {"bufferView": 1, "componentType": 5126, "count": 9, "type": "VEC4",
+             "sparse": {"count": 6, "indices": {"bufferView": 2, "componentType": 5123},
+                        "values": {"bufferView": 3}}},
+            {"bufferView": 4, "componentType": 5121, "count": 9, "type": "VEC4"},
+            {"bufferView": 5, "componentType": 5123, "count": faces.size, "type": "SCALAR"},
+            {"bufferView": 6, "componentType": 5126, "count": 2, "type": "MAT4"}],
+        "bufferViews": views,
+        "buffers": [{"byteLength": len(blob),
+                     "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+    }
+    path = tmp_path / "inter.gltf"
+    path.write_text(json.dumps(doc))
+    c = load_gltf(path)
+    order = cKDTree(c.rest_vertices).query(pos + [0.5, 0, 0])[1]
+    assert np.abs(c.rest_vertices[order] - (pos + [0.5, 0, 0])).max() < 1e-6
+    np.testing.assert_allclose(c.rest_normals[order], nrm, atol=1e-6)  # file normals kept (z-up == mesh frame)
+    dense = c.dense_weights[order]
+    np.testing.assert_allclose(dense, weights, atol=1e-6)
