@@ -124,28 +124,36 @@ class ShadingGraph(nn.Module):
     def forward(self, visibility: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor,
                 lobe_dirs: torch.Tensor, lobe_coeffs: torch.Tensor, rpo_M: torch.Tensor, rpo_w: torch.Tensor,
                 rpo_tint: torch.Tensor) -> torch.Tensor:
+        return self.shade_vertex_last(visibility.transpose(1, 2), frames, view_dirs, lobe_dirs, lobe_coeffs,
+                                      rpo_M, rpo_w, rpo_tint)
+
+    def shade_vertex_last(self, vis_t: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor,
+                          lobe_dirs: torch.Tensor, lobe_coeffs: torch.Tensor, rpo_M: torch.Tensor,
+                          rpo_w: torch.Tensor, rpo_tint: torch.Tensor) -> torch.Tensor:
+        """As :meth:`forward` with the visibility given vertex-last, ``vis_t (B, C, V)``."""
         k, c, _ = rpo_M.shape
         n_lobes = lobe_dirs.shape[0]
         b, v = frames.shape[0], frames.shape[2]
         ft = frames  # (B, 9, V): ft[., 3i+j, v] = F_v[i, j]
         # local coordinates F @ s of the K lobe axes: one MatMul with kron(I3, s) (K*3, 9)
         eye3 = torch.eye(3, dtype=frames.dtype)
-        s_kron = (eye3.reshape(1, 3, 3, 1) * lobe_dirs.reshape(n_lobes, 1, 1, 3)).reshape(n_lobes * 3, 9)
-        s_loc = (s_kron @ ft).reshape(b, n_lobes, 3, v)  # (B, K, 3, V)
+        # rows ordered (component i, lobe K) so that each component is one contiguous (K*V) block
+        s_kron = (eye3.reshape(3, 1, 3, 1) * lobe_dirs.reshape(1, n_lobes, 1, 3)).reshape(3 * n_lobes, 9)
+        s_loc = (s_kron @ ft).reshape(b, 3, n_lobes * v)  # (B, 3, K*V): [i, K*V + v] = (F_v s_K)_i
         view_t = view_dirs  # (B, 3, V)
         vx, vy, vz = view_t[:, 0], view_t[:, 1], view_t[:, 2]
         wo = torch.stack([ft[:, 3 * i] * vx + ft[:, 3 * i + 1] * vy + ft[:, 3 * i + 2] * vz for i in range(3)],
                          dim=1)  # (B, 3, V) local view direction F @ wo
-        y_lobes = self.sh(s_loc)  # (B, K, C, V)
+        y_lobes = self.sh(s_loc).reshape(b, c, n_lobes, v)  # (B, C, K, V)
         y_view = self.sh(wo)  # (B, C, V)
         a = rpo_w @ y_view  # (B, k, V): view factors w_b . y(wo)
-        z = (rpo_M.reshape(k * c, c) @ visibility.transpose(1, 2)).reshape(b, k, c, v)  # (B, k, C, V): M_b v
+        z = (rpo_M.reshape(k * c, c) @ vis_t).reshape(b, k, c, v)  # (B, k, C, V): M_b v
         zz = a[:, 0:1] * z[:, 0]
         for t in range(1, self.max_terms):  # unrolled sum over BRDF terms (k is fixed at export)
             zz = zz + a[:, t:t + 1] * z[:, t]  # (B, C, V)
         g = lobe_coeffs.index_select(1, self.band)  # (K, C, 3)
-        g_t = g.permute(2, 0, 1).reshape(3, n_lobes * c)  # (3, K*C)
-        p = (y_lobes * zz.unsqueeze(1)).reshape(b, n_lobes * c, v)  # (B, K*C, V)
+        g_t = g.permute(2, 1, 0).reshape(3, c * n_lobes)  # (3, C*K)
+        p = (y_lobes * zz.unsqueeze(2)).reshape(b, c * n_lobes, v)  # (B, C*K, V)
         out = g_t @ p  # (B, 3, V)
         return (out * rpo_tint.reshape(1, 3, 1)).transpose(1, 2)  # (B, V, 3)
 
@@ -157,10 +165,11 @@ class CompactUnprojection(nn.Module):
     most components; at ~11.7k vertices most of those bytes are zeros, and the run-time cost of the
     model is streaming its bytes. Here each cluster ``g`` keeps only its used block ``(K_g, L_g)``
     (one MatMul per cluster, then Concat), and the gather indices are remapped into the compact
-    layout - the same numbers, exactly (only zero rows/columns are dropped).
+    layout - the same numbers, exactly (only zero rows/columns are dropped). With ``vertex_last`` the
+    gather also transposes: the output is ``(B, C, V)`` at no extra cost.
     """
 
-    def __init__(self, out: nn.Module) -> None:
+    def __init__(self, out: nn.Module, vertex_last: bool = False) -> None:
         super().__init__()
         basis = out.basis.detach().float()
         gather = out.gather.detach().long()
@@ -178,17 +187,25 @@ class CompactUnprojection(nn.Module):
             self.k_used.append(k_g)
             offsets[g] = start
             start += l_g
-        self.register_buffer("gather", (offsets[grp] + col).to(torch.int32))
-        self.register_buffer("mean", out.mean.detach().float())
         self.n_groups = g_count
-        self.n_vertices = int(out.n_vertices)
-        self.n_coeffs = int(out.n_coeffs)
+        self.n_vertices = v = int(out.n_vertices)
+        self.n_coeffs = c = int(out.n_coeffs)
+        gather_c = (offsets[grp] + col).to(torch.int32)
+        mean = out.mean.detach().float()
+        self.vertex_last = vertex_last
+        if vertex_last:  # permute the gather so that the output comes out as (B, C, V)
+            gather_c = gather_c.reshape(v, c).t().contiguous().reshape(-1)
+            mean = mean.reshape(v, c).t().contiguous().reshape(-1)
+        self.register_buffer("gather", gather_c)
+        self.register_buffer("mean", mean)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         parts = [z[:, g, : self.k_used[g]] @ getattr(self, f"basis_{g}")
                  for g in range(self.n_groups) if getattr(self, f"basis_{g}").numel()]
         y = torch.cat(parts, dim=1)  # (B, sum L_g)
         out = y.index_select(1, self.gather) + self.mean
+        if self.vertex_last:
+            return out.reshape(z.shape[0], self.n_coeffs, self.n_vertices)
         return out.reshape(z.shape[0], self.n_vertices, self.n_coeffs)
 
 
@@ -199,18 +216,21 @@ class VisibilityGraph(nn.Module):
     unprojection compacted (:class:`CompactUnprojection`); any other module is used as is.
     """
 
-    def __init__(self, model: nn.Module, compact: bool = True) -> None:
+    def __init__(self, model: nn.Module, compact: bool = True, vertex_last: bool = False) -> None:
         super().__init__()
         self.model = model
         self.compact = compact and all(hasattr(model, a) for a in ("inp", "regressor", "out")) \
             and all(hasattr(model.out, a) for a in ("basis", "gather", "mean"))
+        self.vertex_last = vertex_last
         if self.compact:
-            self.out = CompactUnprojection(model.out)
+            self.out = CompactUnprojection(model.out, vertex_last=vertex_last)
 
     def forward(self, pose: torch.Tensor) -> torch.Tensor:
+        """``(B, A) -> (B, V, C)``, or ``(B, C, V)`` when built with ``vertex_last``."""
         if self.compact:
             return self.out(self.model.regressor(self.model.inp(pose)))
-        return self.model(pose)
+        v = self.model(pose)
+        return v.transpose(1, 2) if self.vertex_last else v
 
 
 class FusedGraph(nn.Module):
@@ -218,10 +238,13 @@ class FusedGraph(nn.Module):
 
     def __init__(self, model: nn.Module, order: int, n_terms: int = 8) -> None:
         super().__init__()
-        self.model = model if isinstance(model, VisibilityGraph) else VisibilityGraph(model)
+        if isinstance(model, VisibilityGraph):
+            model = model.model
+        self.model = VisibilityGraph(model, vertex_last=True)  # (B, C, V): no transpose before the RPO GEMM
         self.shading = ShadingGraph(order, n_terms)
 
     def forward(self, pose: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor, lobe_dirs: torch.Tensor,
                 lobe_coeffs: torch.Tensor, rpo_M: torch.Tensor, rpo_w: torch.Tensor,
                 rpo_tint: torch.Tensor) -> torch.Tensor:
-        return self.shading(self.model(pose), frames, view_dirs, lobe_dirs, lobe_coeffs, rpo_M, rpo_w, rpo_tint)
+        return self.shading.shade_vertex_last(self.model(pose), frames, view_dirs, lobe_dirs, lobe_coeffs, rpo_M,
+                                              rpo_w, rpo_tint)
