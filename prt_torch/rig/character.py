@@ -26,7 +26,7 @@ from prt_torch.rig.skinning import check_skin_weights, dense_weights, skin
 FORMAT_VERSION = 1
 
 
-@dataclass
+@dataclass(repr=False)
 class Poses:
     """One posed sequence of ``F`` frames.
 
@@ -46,8 +46,11 @@ class Poses:
         """``F``."""
         return int(self.local.shape[0])
 
+    def __repr__(self) -> str:
+        return f"Poses(name={self.name!r}, fps={self.fps}, F={self.num_frames}, A={self.features.shape[1]})"
 
-@dataclass
+
+@dataclass(repr=False)
 class Character:
     """A skinned character. All arrays are numpy.
 
@@ -109,6 +112,10 @@ class Character:
             self.joint_limits = lim
         self._dense_w: np.ndarray | None = None
         self._dense_wt: np.ndarray | None = None
+
+    def __repr__(self) -> str:
+        return (f"Character(name={self.name!r}, V={self.num_vertices}, T={len(self.faces)}, J={self.num_joints}, "
+                f"clips={list(self.clips)})")
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
