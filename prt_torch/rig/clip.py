@@ -10,7 +10,7 @@ from prt_torch.errors import check
 from prt_torch.rig.rotations import matrix_to_quat, quat_to_matrix, slerp
 
 
-@dataclass
+@dataclass(repr=False)
 class Clip:
     """One motion: ``local (F, J, 4, 4)`` float64 joint-local transforms at ``fps`` frames per second.
 
@@ -29,6 +29,9 @@ class Clip:
         check(bool(np.all(np.isfinite(self.local))), f"clip {self.name!r}: local transforms contain NaN or inf")
         check(bool(np.isfinite(self.fps)) and self.fps > 0, f"clip {self.name!r}: fps must be > 0, got {self.fps}")
         self.fps = float(self.fps)
+
+    def __repr__(self) -> str:
+        return f"Clip(name={self.name!r}, fps={self.fps}, F={self.num_frames}, J={self.num_joints})"
 
     @property
     def num_frames(self) -> int:
