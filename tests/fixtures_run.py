@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-SMALL_TRAIN = dict(kinds=["linear", "quadratic", "mlp"], alphas=[1e-3, 1e-1, 10.0], mlp_alphas=[1e-2, 1.0],
-                   neurons=[4, 8], cv_iter=60, max_iter=200, folds=4)
+SMALL_TRAIN = dict(kinds=["linear", "quadratic", "mlp"], alphas=[1e-2, 1.0, 100.0], mlp_alphas=[1.0, 10.0],
+                   neurons=[8], cv_iter=60, max_iter=200, folds=4)
 
 
 def write_synthetic_dataset(path: Path, n_vertices: int = 240, order: int = 3, seed: int = 0,

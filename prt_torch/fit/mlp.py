@@ -43,11 +43,19 @@ def mlp_forward(x: torch.Tensor, p: MLPParams) -> torch.Tensor:
 def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_weight: torch.Tensor,
             alpha: torch.Tensor, neuron_mask: torch.Tensor, max_iter: int = 500, seed: int = 0,
             history_size: int = 20, chunk: int = 25,
-            progress: Callable[[int, float], None] | None = None) -> tuple[MLPParams, float, int]:
+            progress: Callable[[int, float], None] | None = None,
+            init_linear: tuple[torch.Tensor, torch.Tensor] | None = None,
+            init_gain: float = 0.5) -> tuple[MLPParams, float, int]:
     """Fit the batch; returns masked parameters (float64), the final objective and iterations run.
 
     ``x (F, d)``, ``z (F, G, K)`` reduced targets, ``out_mask (G, K)`` real output dims,
     ``sample_weight (S, F)``, ``alpha (S, G)``, ``neuron_mask (S, G, N)``.
+
+    ``init_linear = (W (S, G, d, K), b (S, G, K))``: start from a linear model (e.g. the ridge
+    fit): its leading singular directions ``W = sum sigma u v^T`` become neurons in their nearly
+    linear regime (``D_n = init_gain u_n``, ``C_n = sigma_n v_n / init_gain``, ``tanh(t) ~ t``), so
+    L-BFGS starts at (a rank-``N`` truncation of) the linear solution instead of a random point.
+    Without it the hidden layer is random and the output layer is fitted by ridge.
     """
     x = x.to(DT)
     z = z.to(DT)
@@ -73,6 +81,18 @@ def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_wei
     sol = torch.linalg.solve(lhs, rhs)
     C = sol[:, :, :n, :].transpose(2, 3) * nm.unsqueeze(2) * om[None, :, :, None]
     c0 = sol[:, :, n, :] * om
+    if init_linear is not None:
+        w_lin, b_lin = (t.to(DT) for t in init_linear)
+        check(w_lin.shape == (s, g, d, k) and b_lin.shape == (s, g, k), "mlp fit: bad init_linear shapes")
+        u, sig, vh = torch.linalg.svd(w_lin, full_matrices=False)  # (S,G,d,r) (S,G,r) (S,G,r,K)
+        r = min(n, sig.shape[-1])
+        D = 0.01 * D
+        D[:, :, :r, :] = init_gain * u[..., :r].transpose(2, 3)
+        d0 = torch.zeros_like(d0)
+        C = torch.zeros_like(C)
+        C[:, :, :, :r] = (vh[:, :, :r, :] * (sig[..., :r] / init_gain).unsqueeze(-1)).transpose(2, 3)
+        D, C = D * nm.unsqueeze(-1), C * nm.unsqueeze(2) * om[None, :, :, None]
+        c0 = b_lin * om
     params = [t.clone().requires_grad_(True) for t in (D, d0, C, c0)]
     zt = z.permute(1, 0, 2).unsqueeze(0)  # (1, G, F, K)
     masks = (nm.unsqueeze(-1), nm, nm.unsqueeze(2) * om[None, :, :, None], om.expand(s, g, k))

@@ -27,7 +27,7 @@ from prt_torch.fit.config import TrainConfig
 from prt_torch.fit.data import DatasetInfo, SplitData, dataset_info, load_split
 from prt_torch.fit.folds import blocked_folds
 from prt_torch.fit.mlp import fit_mlp
-from prt_torch.fit.ridge import fit_ridge_per_group, ridge_cv
+from prt_torch.fit.ridge import fit_ridge_per_group, ridge_cv, ridge_path
 from prt_torch.io import atomic_path, atomic_write_json
 from prt_torch.models import (
     InputProjection,
@@ -129,6 +129,16 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
                 progress.update(task, description=f"mlp {stage}: iter {it} objective {loss:.4g}")
         return cb
 
+    # L-BFGS starts from the ridge-linear solution (alpha per cluster by the same blocked CV)
+    lin_grid = np.asarray(cfg.alphas, dtype=np.float64)
+    lin_alpha = lin_grid[np.argmin(ridge_cv(red.x, red.z, red.mask, red.folds, lin_grid), axis=0)]
+
+    def linear_init(train_mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        uniq, inv = np.unique(lin_alpha, return_inverse=True)
+        w, b = ridge_path(red.x, red.z, uniq, train_mask)  # (U, d, G, K), (U, G, K)
+        gi = np.arange(g)
+        return np.transpose(w[inv, :, gi], (0, 1, 2)) * red.mask[:, None, :], b[inv, gi] * red.mask
+
     cv = np.zeros((len(neurons), len(alphas), g))
     if len(neurons) * len(alphas) > 1:
         n_s = len(folds) * len(alphas)
@@ -136,9 +146,13 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
         alpha_of = np.tile(alphas, len(folds))
         weight = torch.as_tensor((red.folds[None, :] != fold_of[:, None]).astype(np.float64))
         alpha_t = torch.as_tensor(np.repeat(alpha_of[:, None], g, axis=1))
+        inits = {f: linear_init(red.folds != f) for f in folds}
+        init = (torch.as_tensor(np.stack([inits[f][0] for f in fold_of])),
+                torch.as_tensor(np.stack([inits[f][1] for f in fold_of])))
         for i, n in enumerate(neurons):
             params, _, _ = fit_mlp(x, z, om, weight, alpha_t, torch.ones(n_s, g, n), max_iter=cfg.cv_iter,
-                                   seed=cfg.seed, history_size=cfg.history_size, progress=report(f"CV N={n}"))
+                                   seed=cfg.seed, history_size=cfg.history_size, progress=report(f"CV N={n}"),
+                                   init_linear=init)
             with torch.no_grad():
                 from prt_torch.fit.mlp import mlp_forward
 
@@ -156,9 +170,11 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
         best_a = np.full(g, alphas[0])
     nmax = int(best_n.max())
     nmask = torch.as_tensor((np.arange(nmax)[None, :] < best_n[:, None]).astype(np.float64)).unsqueeze(0)
+    w0, b0 = linear_init(None)
     params, loss, iters = fit_mlp(x, z, om, torch.ones(1, x.shape[0]), torch.as_tensor(best_a)[None], nmask,
                                   max_iter=cfg.max_iter, seed=cfg.seed, history_size=cfg.history_size,
-                                  progress=report("final"))
+                                  progress=report("final"),
+                                  init_linear=(torch.as_tensor(w0)[None], torch.as_tensor(b0)[None]))
     if progress is not None:
         progress.remove_task(task)
     reg = MLPRegressor(red.x.shape[1], g, red.z.shape[2], nmax)
@@ -226,6 +242,22 @@ def train_dataset(dataset: str | Path, run_dir: str | Path, cfg: TrainConfig | N
     run_dir = Path(run_dir)
     info = dataset_info(dataset)
     torch.manual_seed(cfg.seed)
+    threads = torch.get_num_threads()
+    if cfg.threads:
+        # the L-BFGS two-loop recursion is many tiny vector ops: thread sync dominates (10x on 2 busy cores)
+        torch.set_num_threads(cfg.threads)
+    try:
+        if cfg.threads:
+            from threadpoolctl import threadpool_limits
+
+            with threadpool_limits(limits=cfg.threads):
+                return _train(dataset, run_dir, cfg, info, progress)
+        return _train(dataset, run_dir, cfg, info, progress)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _train(dataset: str | Path, run_dir: Path, cfg: TrainConfig, info: DatasetInfo, progress: Any) -> dict[str, Any]:
     train = load_split(dataset, "train")
     check(train.n_frames >= 2 * cfg.folds, f"{dataset}: only {train.n_frames} training frames for {cfg.folds} folds")
     red = reduce_training(train, info.cluster, cfg)

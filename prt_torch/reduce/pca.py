@@ -34,6 +34,28 @@ def components_for_variance(explained: np.ndarray, variance: float) -> int:
     return max(1, min(k, len(explained)))
 
 
+def _thin_svd(xc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values ``(r,)`` and right vectors ``(r, D)`` of ``xc (N, D)``.
+
+    Wide data (``D > 2N``, e.g. a cluster's ``V_c * C`` visibility over few frames) goes through
+    the ``N x N`` Gram matrix (``eigh``), 10-50x faster than LAPACK's SVD here; directions with
+    singular values below ``1e-7 s_max`` (numerically null, never retained) are dropped.
+    """
+    n, d = xc.shape
+    if d <= 2 * n:
+        _, s, vt = np.linalg.svd(xc, full_matrices=False)
+        return s, vt
+    lam, u = np.linalg.eigh(xc @ xc.T)
+    order = np.argsort(lam)[::-1]
+    lam, u = np.maximum(lam[order], 0.0), u[:, order]
+    s = np.sqrt(lam)
+    keep = s > (s[0] * 1e-7 if s[0] > 0 else np.inf)
+    keep[0] = True
+    s, u = s[keep], u[:, keep]
+    vt = (u.T @ xc) / np.where(s > 0, s, 1.0)[:, None]
+    return s, vt
+
+
 @dataclass
 class PCA:
     """A fitted PCA: ``reduce(x) = ((x - mean) @ components.T) / scale``.
@@ -57,8 +79,7 @@ class PCA:
         x = _check_data(data, name)
         mean = x.mean(axis=0)
         xc = x - mean
-        # thin SVD; eigenvalues of the covariance are s^2 / (N - 1)
-        _, s, vt = np.linalg.svd(xc, full_matrices=False)
+        s, vt = _thin_svd(xc)  # eigenvalues of the covariance are s^2 / (N - 1)
         explained = s**2 / max(x.shape[0] - 1, 1)
         if n_components is None:
             check(variance is not None, "PCA needs variance or n_components")
