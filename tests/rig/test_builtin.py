@@ -181,3 +181,27 @@ def test_bad_arguments(humanoid: Character) -> None:
         builtin.make_clip("moonwalk", humanoid.bind_local, humanoid.parents)
     with pytest.raises(PrtError, match="random poses"):
         random_poses(humanoid, 0)
+
+
+def test_arms_shadow_the_torso_by_ray_casting(humanoid: Character) -> None:
+    """Ground truth by Embree: rays along the normals of the torso's flanks hit the arms when they hang
+    down (walk) and escape when they are raised (jumping jacks)."""
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    dom = np.array(humanoid.joint_names)[humanoid.dense_weights.argmax(1)]
+    flank_part = np.isin(dom, ["chest", "spine"])
+
+    def occluded(clip: str) -> np.ndarray:
+        p = humanoid.pose(clip)
+        pos, nrm = humanoid.skin_mesh(p)
+        out = []
+        for f in range(0, p.num_frames, 3):
+            flank = flank_part & (np.abs(nrm[f][:, 0]) > 0.8)
+            mesh = trimesh.Trimesh(pos[f], humanoid.faces, process=False)
+            hit = RayMeshIntersector(mesh).intersects_any(pos[f][flank] + 1e-3 * nrm[f][flank], nrm[f][flank])
+            out.append(hit.mean())
+        return np.array(out)
+
+    walk, jacks = occluded("walk"), occluded("jumping_jacks")
+    assert walk.min() > 0.15
+    assert jacks.min() < 0.02 and jacks.max() > 0.25
