@@ -174,8 +174,37 @@ class CompactUnprojection(nn.Module):
         basis = out.basis.detach().float()
         gather = out.gather.detach().long()
         g_count, _, l_max = basis.shape
+        self.n_groups = g_count
+        self.n_vertices = v = int(out.n_vertices)
+        self.n_coeffs = c = int(out.n_coeffs)
         grp, col = gather // l_max, gather % l_max
+        grp_vc = grp.reshape(v, c)
+        # row mode: every vertex's C coefficients come from one cluster -> reorder each cluster's
+        # columns to (vertex, coefficient) so that the unprojection ends in a gather of whole
+        # (C,)-rows (V indices) instead of V*C single floats
+        self.row_mode = bool((grp_vc == grp_vc[:, :1]).all()) and not vertex_last
+        self.vertex_last = vertex_last
         self.k_used: list[int] = []
+        mean = out.mean.detach().float()
+        if self.row_mode:
+            vgrp = grp_vc[:, 0]
+            col_vc = col.reshape(v, c)
+            order: list[torch.Tensor] = []
+            for g in range(g_count):
+                verts = torch.nonzero(vgrp == g).flatten()  # ascending
+                cols = col_vc[verts].reshape(-1)  # (n_g * C,) in (vertex, c) order
+                blk = basis[g][:, cols] if cols.numel() else basis[g][:, :0]
+                rows = torch.nonzero(blk.abs().sum(dim=1) > 0).flatten()
+                k_g = int(rows.max()) + 1 if rows.numel() else 0
+                self.register_buffer(f"basis_{g}", blk[:k_g].contiguous())
+                self.k_used.append(k_g)
+                order.append(verts)
+            perm = torch.cat(order)  # sorted position -> vertex
+            inv = torch.empty(v, dtype=torch.long)
+            inv[perm] = torch.arange(v)
+            self.register_buffer("gather", inv.to(torch.int32))  # vertex -> sorted position
+            self.register_buffer("mean", mean.reshape(v, c))
+            return
         offsets = torch.zeros(g_count, dtype=torch.long)
         start = 0
         for g in range(g_count):
@@ -187,12 +216,7 @@ class CompactUnprojection(nn.Module):
             self.k_used.append(k_g)
             offsets[g] = start
             start += l_g
-        self.n_groups = g_count
-        self.n_vertices = v = int(out.n_vertices)
-        self.n_coeffs = c = int(out.n_coeffs)
         gather_c = (offsets[grp] + col).to(torch.int32)
-        mean = out.mean.detach().float()
-        self.vertex_last = vertex_last
         if vertex_last:  # permute the gather so that the output comes out as (B, C, V)
             gather_c = gather_c.reshape(v, c).t().contiguous().reshape(-1)
             mean = mean.reshape(v, c).t().contiguous().reshape(-1)
@@ -200,13 +224,16 @@ class CompactUnprojection(nn.Module):
         self.register_buffer("mean", mean)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
+        b = z.shape[0]
         parts = [z[:, g, : self.k_used[g]] @ getattr(self, f"basis_{g}")
                  for g in range(self.n_groups) if getattr(self, f"basis_{g}").numel()]
         y = torch.cat(parts, dim=1)  # (B, sum L_g)
+        if self.row_mode:
+            return y.reshape(b, self.n_vertices, self.n_coeffs).index_select(1, self.gather) + self.mean
         out = y.index_select(1, self.gather) + self.mean
         if self.vertex_last:
-            return out.reshape(z.shape[0], self.n_coeffs, self.n_vertices)
-        return out.reshape(z.shape[0], self.n_vertices, self.n_coeffs)
+            return out.reshape(b, self.n_coeffs, self.n_vertices)
+        return out.reshape(b, self.n_vertices, self.n_coeffs)
 
 
 class VisibilityGraph(nn.Module):
@@ -236,15 +263,18 @@ class VisibilityGraph(nn.Module):
 class FusedGraph(nn.Module):
     """Pose features straight to radiance: :class:`VisibilityGraph` then :class:`ShadingGraph`."""
 
-    def __init__(self, model: nn.Module, order: int, n_terms: int = 8) -> None:
+    def __init__(self, model: nn.Module, order: int, n_terms: int = 8, vertex_last: bool = False) -> None:
         super().__init__()
         if isinstance(model, VisibilityGraph):
             model = model.model
-        self.model = VisibilityGraph(model, vertex_last=True)  # (B, C, V): no transpose before the RPO GEMM
+        self.model = VisibilityGraph(model, vertex_last=vertex_last)
+        self.vertex_last = vertex_last
         self.shading = ShadingGraph(order, n_terms)
 
     def forward(self, pose: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor, lobe_dirs: torch.Tensor,
                 lobe_coeffs: torch.Tensor, rpo_M: torch.Tensor, rpo_w: torch.Tensor,
                 rpo_tint: torch.Tensor) -> torch.Tensor:
-        return self.shading.shade_vertex_last(self.model(pose), frames, view_dirs, lobe_dirs, lobe_coeffs, rpo_M,
-                                              rpo_w, rpo_tint)
+        vis = self.model(pose)
+        if not self.vertex_last:  # (B, V, C): the transpose fuses into the RPO MatMul (transB)
+            vis = vis.transpose(1, 2)
+        return self.shading.shade_vertex_last(vis, frames, view_dirs, lobe_dirs, lobe_coeffs, rpo_M, rpo_w, rpo_tint)
