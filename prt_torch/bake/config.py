@@ -28,8 +28,9 @@ class BakeConfig(BaseModel):
     seed: int = 0
     #: ray origins are offset along the normal by this fraction of the rest mesh's bounding-box diagonal
     ray_offset: float = Field(default=1e-4, gt=0, lt=0.05)
-    #: mean-shift bandwidth in skinning-weight space; None: estimated (sklearn estimate_bandwidth)
-    cluster_bandwidth: float | None = Field(default=None, gt=0)
+    #: mean-shift bandwidth in skinning-weight space (pure single-bone vertices are sqrt(2) apart, so 0.45 keeps
+    #: bones apart and gives blend zones their own clusters); None: sklearn estimate_bandwidth, clamped to 0.2..0.5
+    cluster_bandwidth: float | None = Field(default=0.45, gt=0)
     #: at most this many local-frame clusters (the smallest are merged into their nearest neighbour)
     max_clusters: int = Field(default=64, ge=1)
     #: clusters with fewer vertices than this are merged into their nearest neighbour

@@ -28,7 +28,7 @@ from prt_torch.errors import PrtError
 FALLBACK_BELOW = 0.3
 
 #: mean shift is fitted on at most this many vertices (a seeded subsample); all vertices are then labelled
-FIT_SAMPLES = 1500
+FIT_SAMPLES = 1000
 
 
 def cluster_vertices(
@@ -43,7 +43,7 @@ def cluster_vertices(
     Args:
         weights: ``(V, J)`` dense skinning weights (rows sum to 1).
         bandwidth: flat-kernel radius in weight space; ``None``: ``sklearn.cluster.estimate_bandwidth``
-            (quantile 0.1) clamped to ``[0.2, 0.7]`` (pure single-bone vertices are ``sqrt 2`` apart).
+            (quantile 0.1) clamped to ``[0.2, 0.5]`` (pure single-bone vertices are ``sqrt 2`` apart).
         max_clusters: merge the smallest clusters until at most this many remain.
         min_size: clusters with fewer vertices are merged into the nearest cluster (centre distance).
         seed: seed of the bandwidth estimate's subsample.
@@ -51,7 +51,8 @@ def cluster_vertices(
     Returns:
         ``(V,)`` int32 labels ``0..Kc-1``, numbered in order of first appearance (deterministic).
     """
-    from sklearn.cluster import MeanShift, estimate_bandwidth
+    from sklearn.cluster import MeanShift, estimate_bandwidth, get_bin_seeds
+    from threadpoolctl import threadpool_limits
 
     w = np.asarray(weights, dtype=np.float64)
     if w.ndim != 2 or w.shape[0] == 0:
@@ -62,19 +63,24 @@ def cluster_vertices(
         raise PrtError(f"max_clusters and min_size must be >= 1, got {max_clusters} and {min_size}")
     V = w.shape[0]
     if bandwidth is None:
-        bandwidth = float(estimate_bandwidth(w, quantile=0.1, n_samples=min(V, 2000), random_state=seed))
-        bandwidth = float(np.clip(bandwidth, 0.2, 0.7))
+        with threadpool_limits(limits=1):
+            bandwidth = float(estimate_bandwidth(w, quantile=0.1, n_samples=min(V, 2000), random_state=seed))
+        bandwidth = float(np.clip(bandwidth, 0.2, 0.5))
     if not bandwidth > 0:
         raise PrtError(f"mean-shift bandwidth must be > 0, got {bandwidth}")
     if V == 1:
         return np.zeros(1, dtype=np.int32)
-    ms = MeanShift(bandwidth=bandwidth, bin_seeding=True, cluster_all=True, n_jobs=1)
     # fit on a fixed subsample (mean shift is quadratic-ish), then give every vertex its nearest mode
     fit = w if V <= FIT_SAMPLES else w[np.sort(np.random.default_rng(seed).choice(V, FIT_SAMPLES, replace=False))]
-    with warnings.catch_warnings():  # "binning failed, using data points as seeds": fine, just slower
-        warnings.simplefilter("ignore", UserWarning)
+    # single-threaded BLAS: the many tiny neighbour queries are 10x slower with threads on a busy machine
+    with threadpool_limits(limits=1), warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "binning failed, using data points as seeds": fine
+        seeds = get_bin_seeds(fit, bandwidth, min_bin_freq=3)  # bins of >= 3 vertices seed the modes
+        if len(seeds) == 0:
+            seeds = get_bin_seeds(fit, bandwidth, min_bin_freq=1)
+        ms = MeanShift(bandwidth=bandwidth, seeds=seeds, cluster_all=True, n_jobs=1)
         ms.fit(fit)
-    labels = ms.predict(w)
+        labels = ms.predict(w)
     labels = _merge_small(w, labels, max_clusters, min_size)
     # renumber in order of first appearance
     _, first = np.unique(labels, return_index=True)

@@ -138,3 +138,39 @@ def test_frames_module_does_not_import_torch() -> None:
 
     code = "import sys, prt_torch.bake.frames; assert 'torch' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_builtin_walk_frames_are_coherent() -> None:
+    """Frames of the built-in humanoid over its 30 fps walk.
+
+    (a) Where the cluster axis is well off the normal (tangent-plane length >= FALLBACK_BELOW in both
+    frames), the tangent turns by no more than the Dunkl-Williams bound of the projected axis:
+    ``2 asin(4 (theta_bone + theta_normal) / (|t_a| + |t_a'|))`` (the projection ``a - (a.n) n`` moves
+    by at most ``2 |da| + 2 |dn|``). (b) Stated angle: at least 99% of
+    vertex steps turn the tangent by at most 20 degrees.
+    """
+    from prt_torch.bake.frames import FALLBACK_BELOW
+    from prt_torch.rig.builtin import make_character
+
+    ch = make_character(0.05)
+    w = ch.dense_weights
+    labels = cluster_vertices(w)
+    axes, bones = cluster_axes(ch.rest_vertices, labels), cluster_bones(w, labels)
+    assert labels.max() + 1 >= 10  # roughly a part per bone, not a handful of blobs
+    poses = ch.pose("walk")
+    _, nrm = ch.skin_mesh(poses)
+    fr = local_frames(nrm, poses.skin, labels, axes, bones).astype(np.float64)
+    t, n = fr[..., 0, :], fr[..., 2, :]
+    turn = np.arccos(np.clip(np.sum(t[1:] * t[:-1], axis=-1), -1, 1))
+    rot = poses.skin[:, bones, :3, :3][:, labels]  # (F, V, 3, 3) dominant-bone rotation per vertex
+    rel = np.einsum("fvij,fvkj->fvik", rot[1:], rot[:-1])
+    theta_b = np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1, 1))
+    theta_n = np.arccos(np.clip(np.sum(n[1:] * n[:-1], axis=-1), -1, 1))
+    a = np.einsum("fvij,vj->fvi", rot, axes[labels].astype(np.float64))
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    la = np.sqrt(np.clip(1 - np.sum(a * n, axis=-1) ** 2, 0, None))
+    good = (la[1:] >= FALLBACK_BELOW) & (la[:-1] >= FALLBACK_BELOW)
+    bound = 2 * np.arcsin(np.clip(4 * (theta_b + theta_n) / (la[1:] + la[:-1]), 0, 1))
+    assert good.mean() > 0.9
+    assert np.all(turn[good] <= bound[good] + 1e-3)  # + float32 rounding of the stored frames
+    assert np.mean(np.degrees(turn) <= 20.0) >= 0.99

@@ -248,3 +248,18 @@ def test_nan_pose_is_refused_before_writing(tmp_path: Path, monkeypatch: pytest.
     with pytest.raises(PrtError, match="NaN"):
         bake(cfg, workers=1, progress=False)
     assert not (tmp_path / "nan").exists()
+
+
+def test_transfer_is_stored_and_consistent_with_visibility(tmp_path: Path) -> None:
+    """Same rays: the direct transfer's DC equals y00/pi * v_10 / sqrt(3/4pi) (the cosine is the local z)."""
+    cfg = tiny_config(tmp_path / "direct", transfer=True, transfer_order=4)
+    cfg["character"].update(random_poses=4, heldout_clips=[])
+    ds = open_dataset(bake(config_from_dict(cfg), workers=1, progress=False))
+    t = ds.transfer
+    assert t is not None and t.shape == (4, ds.n_vertices, 16)
+    y00, y10 = 1 / math.sqrt(4 * math.pi), math.sqrt(3 / (4 * math.pi))
+    np.testing.assert_allclose(t[..., 0], y00 / math.pi * ds.visibility[..., 2] / y10, atol=1e-5)
+    cfg_b = tiny_config(tmp_path / "bounce", transfer=True, transfer_order=4, bounces=1)
+    cfg_b["character"].update(random_poses=4, heldout_clips=[])
+    tb = open_dataset(bake(config_from_dict(cfg_b), workers=1, progress=False)).transfer
+    assert tb is not None and np.all(tb[..., 0] >= t[..., 0] - 1e-6) and (tb[..., 0] - t[..., 0]).max() > 1e-3
