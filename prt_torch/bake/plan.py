@@ -70,14 +70,9 @@ def load_character(cfg: RunConfig) -> Character:
         raise PrtError(f"unknown character source {ch.source!r}: expected 'builtin' or a .glb/.gltf file")
     if not path.is_file():
         raise PrtError(f"character file not found: {path}")
-    try:
-        from prt_torch.rig import load_gltf  # type: ignore[attr-defined]
-    except ImportError:
-        try:
-            from prt_torch.rig.gltf import load_gltf  # type: ignore[no-redef]
-        except ImportError:
-            raise PrtError("glTF characters need prt_torch.rig.load_gltf, which is not available") from None
-    return load_gltf(path)
+    from prt_torch.rig.gltf import load_gltf
+
+    return load_gltf(path, fps=ch.fps, height=ch.height)
 
 
 def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:

@@ -162,11 +162,6 @@ def bake_block(task: BlockTask) -> BlockStats:
     return BlockStats(frames=n, rays=rays, seconds=time.perf_counter() - t0)
 
 
-def _init_worker() -> None:
-    """Process-pool initializer: keep BLAS single-threaded (workers already fill the cores)."""
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-
 # -- main side -----------------------------------------------------------------------------------
 
 def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any]:
@@ -277,8 +272,7 @@ def _run_local(tasks: list[BlockTask], workers: int) -> Iterator[BlockStats]:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn"),
-                             initializer=_init_worker) as ex:
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn")) as ex:
         futures = [ex.submit(bake_block, t) for t in tasks]
         try:
             for fut in as_completed(futures):

@@ -263,3 +263,16 @@ def test_transfer_is_stored_and_consistent_with_visibility(tmp_path: Path) -> No
     cfg_b["character"].update(random_poses=4, heldout_clips=[])
     tb = open_dataset(bake(config_from_dict(cfg_b), workers=1, progress=False)).transfer
     assert tb is not None and np.all(tb[..., 0] >= t[..., 0] - 1e-6) and (tb[..., 0] - t[..., 0]).max() > 1e-3
+
+
+def test_gltf_fox_bakes(tmp_path: Path, shared_data: Path) -> None:
+    """The glTF path of configs/fox.yaml (Survey + Walk train, Run held out), few rays and frames."""
+    cfg = {"name": "fox", "run_dir": str(tmp_path),
+           "character": {"source": str(shared_data / "characters" / "Fox.glb"), "height": 1.8, "fps": 5.0,
+                         "train_clips": ["Walk"], "heldout_clips": ["Run"]},
+           "bake": {"order": 3, "n_rays": 32, "frames_per_task": 4}}
+    ds = open_dataset(bake(config_from_dict(cfg), workers=1, progress=False))
+    assert ds.complete and ds.clip_names == ["Walk", "Run"] and ds.heldout_mask.sum() > 0
+    dc = ds.visibility[..., 0]
+    assert 0 <= dc.min() and dc.max() <= 2 * math.pi / math.sqrt(4 * math.pi) + 1e-5
+    assert ds.character().content_hash() == ds.character_hash
