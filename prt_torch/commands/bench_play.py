@@ -32,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=20)
     parser.add_argument("--brdf", default="phong", help="RPO of the run (default phong, 8 terms)")
     parser.add_argument("--raytrace-frames", type=int, default=3, help="frames ray-traced for the baseline")
+    parser.add_argument("--rays", type=int, default=None,
+                        help="rays per vertex of the ray-traced baseline (default: the run's bake n_rays)")
     parser.add_argument("--batch", type=int, default=32, help="characters per call for the batched figure")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -108,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.bake.frame import RaySet, bake_frame
 
     ds_attrs = _dataset_attrs(run_dir)
-    n_rays = int(ds_attrs.get("n_rays") or 128)
+    n_rays = int(args.rays or ds_attrs.get("n_rays") or 128)
     rel_offset = float((ds_attrs.get("bake") or {}).get("ray_offset", 1e-4))
     rays = RaySet.make(n_rays, player.order, player.bundle.n_vertices, seed=0)
     offset = ray_offset(player.character.rest_vertices, rel_offset)
