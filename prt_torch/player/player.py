@@ -8,7 +8,7 @@ Per frame (``Player.compute``)::
         --cluster axes--> frames (B, 9, V);  pose features (B, A)   (prt_torch.player.posing, vertex-last)
     [fused]  ORT fused.onnx(pose, frames, view dirs, lobes, RPO) -> radiance (B, V, 3)
     [split]  ORT visibility.onnx(pose) -> (B, V, C);  ORT shading.onnx(...) -> radiance
-    radiance --exposure, gamma--> uint8 colours
+    radiance --tone map (exposure, Reinhard white), gamma--> uint8 colours
 
 Embedding::
 
@@ -32,7 +32,7 @@ from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
 from prt_torch.player.posing import PoseBatch, Poser
 from prt_torch.player.timing import FrameTimer
-from prt_torch.player.tonemap import auto_exposure, to_colors
+from prt_torch.player.tonemap import ToneMap, auto_tonemap
 
 GRAPH_MODES = ("fused", "split")
 
@@ -60,7 +60,7 @@ class Player:
         graph: ``"fused"`` (one ORT call per frame) or ``"split"`` (visibility then shading).
         threads: onnxruntime intra-op threads.
         window_size: render size in pixels.
-        exposure: fixed exposure; ``None`` picks one from the first frame.
+        exposure: a fixed :class:`~prt_torch.player.tonemap.ToneMap`; ``None`` picks one from the first frame.
         n_lobes: ZH lobes fitted to the lighting.
         blas_threads: BLAS threads for the numpy posing path (its GEMMs are tiny; 1 avoids thread
             start-up and busy-waiting next to onnxruntime's threads). ``None`` leaves BLAS alone.
@@ -69,7 +69,7 @@ class Player:
 
     def __init__(self, run_dir: str | os.PathLike[str], env: str | os.PathLike[str] | None = None,
                  brdf: str | None = None, graph: str = "fused", threads: int = 2,
-                 window_size: tuple[int, int] = (480, 640), exposure: float | None = None, n_lobes: int = 3,
+                 window_size: tuple[int, int] = (480, 640), exposure: ToneMap | None = None, n_lobes: int = 3,
                  blas_threads: int | None = 1) -> None:
         check(graph in GRAPH_MODES, f"unknown graph mode {graph!r}: expected one of {GRAPH_MODES}")
         self._blas_limit: Any = None
@@ -185,10 +185,10 @@ class Player:
         return state, self.shade(state, checked=False, timer=timer)
 
     def colors(self, radiance: np.ndarray) -> np.ndarray:
-        """uint8 colours; fixes the exposure from the first call when it was not given."""
+        """uint8 colours; fixes the tone map (exposure, white) from the first call when it was not given."""
         if self.exposure is None:
-            self.exposure = auto_exposure(radiance)
-        return to_colors(radiance, self.exposure)
+            self.exposure = auto_tonemap(radiance)
+        return self.exposure(radiance)
 
     # -- rendering -----------------------------------------------------------------------------
     def renderer(self, off_screen: bool = True):  # -> MeshRenderer
@@ -280,7 +280,8 @@ class Player:
         if timings is not None:
             timer.write_json(timings, extra={"clip": clip, "graph": self.graph, "brdf": self.rpo.name,
                                              "lighting": self.lighting.source, "n_vertices": self.bundle.n_vertices,
-                                             "sh_order": self.order, "exposure": self.exposure})
+                                             "sh_order": self.order, "exposure": self.exposure.exposure,
+                                             "white": self.exposure.white})
             outputs.append(Path(timings))
         return PlayResult(n, summary, outputs)
 

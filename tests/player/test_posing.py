@@ -10,7 +10,7 @@ from prt_torch.bake.frames import cluster_axes, cluster_bones, local_frames
 from prt_torch.errors import PrtError
 from prt_torch.player.lighting import hemisphere_visibility, lighting_from_sh, sinc_window
 from prt_torch.player.posing import Poser
-from prt_torch.player.tonemap import auto_exposure, to_colors
+from prt_torch.player.tonemap import auto_tonemap, to_colors
 from prt_torch.rig.builtin import make_character
 
 
@@ -68,4 +68,13 @@ def test_tonemap() -> None:
     c = to_colors(r, 1.0)
     assert c.dtype == np.uint8 and c[0, 0] == 0 and c[0, 2] == 255 and c[1, 1] == 0 and c[1, 2] == 255
     assert c[0, 1] == round(255 * 0.5 ** (1 / 2.2))
-    assert auto_exposure(np.ones((100, 3), np.float32) * 2.0) == pytest.approx(0.45)
+    # Reinhard extended: white maps to 1, small values ~ linear, monotone
+    x = np.array([[0.01, 0.5, 4.0]], np.float32)
+    c = to_colors(x, 1.0, white=4.0)
+    assert c[0, 2] == 255 and c[0, 0] == round(255 * (0.01 * (1 + 0.01 / 16) / 1.01) ** (1 / 2.2))
+    assert c[0, 1] == round(255 * (0.5 * (1 + 0.5 / 16) / 1.5) ** (1 / 2.2))
+    rad = np.random.default_rng(0).uniform(0.0, 10.0, size=(1000, 3)).astype(np.float32)
+    tm = auto_tonemap(rad)
+    m = rad.max(-1)
+    assert tm.exposure == pytest.approx(0.3 / np.median(m), rel=1e-5)
+    assert tm.white == pytest.approx(max(np.percentile(m, 99.5) * tm.exposure, 1.0), rel=1e-5)
