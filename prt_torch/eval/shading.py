@@ -13,8 +13,8 @@ no shadowing) as ``L = sum_c a[..., c, :] v[..., c]``:
 * ``lambert``: ``f = albedo/pi`` (one exact term, ``u = SH of max(z, 0) albedo/pi``, ``w = 1``);
   ``phong``: normalised Phong lobe ``(s+2)/(2 pi) max(r(wo) . wi, 0)^s`` (``k = 8`` terms).
 
-The view is a fixed world direction toward the camera; vertices facing away get ``wo.z <= 0``
-and zero glossy radiance. Environment lights: ``uffizi`` and ``mondello`` from
+The view is a fixed world direction toward the camera; for the glossy RPO vertices facing away
+(``wo.z <= 0``) get zero radiance (the diffuse one is view-independent). Environment lights: ``uffizi`` and ``mondello`` from
 ``../shared/data/envmaps`` when present, a procedural CIE sky, and procedural fallbacks so that
 there are always at least three.
 """
@@ -122,7 +122,9 @@ def shading_vectors(frames: np.ndarray, light: np.ndarray, rpo: RPO, view: np.nd
     l_local = d @ light  # (FV, C, 3)
     wo = r @ view  # (FV, 3) local view direction
     yo = sh_basis(wo / np.linalg.norm(wo, axis=1, keepdims=True), rpo.order, check=False)
-    weight = (yo @ rpo.w.T) * (wo[:, 2:3] > 0)  # (FV, k)
+    weight = yo @ rpo.w.T  # (FV, k)
+    if rpo.name != "lambert":  # view-dependent: no radiance toward a camera below the surface
+        weight = weight * (wo[:, 2:3] > 0)
     ml = np.einsum("kij,njr->nkir", rpo.M, l_local)  # (FV, k, C, 3)
     a = np.einsum("nk,nkir->nir", weight, ml)
     return a.reshape(f, v, c, 3)
