@@ -76,6 +76,10 @@ class SHPolynomial(nn.Module):
         self.register_buffer("coeffs_t", torch.as_tensor(coeffs.T.copy(), dtype=torch.float32), persistent=False)
 
     def forward(self, d: torch.Tensor) -> torch.Tensor:
+        return self.coeffs_t @ self.monomials(d)  # (C, P) @ (..., P, N)
+
+    def monomials(self, d: torch.Tensor) -> torch.Tensor:
+        """``(..., 3, N) -> (..., P, N)`` the monomials ``x^a y^b z^c`` of :func:`sh_polynomial`."""
         comps = [d[..., 0, :], d[..., 1, :], d[..., 2, :]]
         powers = []
         for t in comps:
@@ -94,7 +98,7 @@ class SHPolynomial(nn.Module):
             for t in terms[1:]:
                 m = m * t
             mono.append(m)
-        return self.coeffs_t @ torch.stack(mono, dim=-2)  # (C, P) @ (..., P, N)
+        return torch.stack(mono, dim=-2)
 
 
 class ShadingGraph(nn.Module):
@@ -145,12 +149,11 @@ class ShadingGraph(nn.Module):
         wo = torch.stack([ft[:, 3 * i] * vx + ft[:, 3 * i + 1] * vy + ft[:, 3 * i + 2] * vz for i in range(3)],
                          dim=1)  # (B, 3, V) local view direction F @ wo
         y_lobes = self.sh(s_loc).reshape(b, c, n_lobes, v)  # (B, C, K, V)
-        y_view = self.sh(wo)  # (B, C, V)
-        a = rpo_w @ y_view  # (B, k, V): view factors w_b . y(wo)
-        z = (rpo_M.reshape(k * c, c) @ vis_t).reshape(b, k, c, v)  # (B, k, C, V): M_b v
-        zz = a[:, 0:1] * z[:, 0]
-        for t in range(1, self.max_terms):  # unrolled sum over BRDF terms (k is fixed at export)
-            zz = zz + a[:, t:t + 1] * z[:, t]  # (B, C, V)
+        a = (rpo_w @ self.sh.coeffs_t) @ self.sh.monomials(wo)  # (B, k, V): view factors w_b . y(wo)
+        # zz = sum_b a_b M_b v = Mcat @ (a (x) v): one elementwise outer product, one GEMM
+        m_cat = rpo_M.permute(1, 0, 2).reshape(c, k * c)  # (C, k*C): [i, b*C + j] = M[b, i, j]
+        u = (a.unsqueeze(2) * vis_t.unsqueeze(1)).reshape(b, k * c, v)  # (B, k*C, V): a_b v_j
+        zz = m_cat @ u  # (B, C, V)
         g = lobe_coeffs.index_select(1, self.band)  # (K, C, 3)
         g_t = g.permute(2, 1, 0).reshape(3, c * n_lobes)  # (3, C*K)
         p = (y_lobes * zz.unsqueeze(2)).reshape(b, c * n_lobes, v)  # (B, C*K, V)
