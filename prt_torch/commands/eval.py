@@ -12,7 +12,7 @@ HELP = "Evaluate a trained run on held-out clips: errors, PSNR, jitter, storage;
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", help="run directory (runs/NAME) with model.json, or a run config YAML")
     parser.add_argument("--dataset", default=None, help="dataset.zarr (default: the one recorded in model.json)")
-    parser.add_argument("--frames", type=int, default=48, help="max frames per split (contiguous per clip)")
+    parser.add_argument("--frames", type=int, default=32, help="max frames per split (contiguous per clip)")
     parser.add_argument("--no-report", action="store_true", help="skip figures and the shaded image")
     parser.add_argument("--json", action="store_true", help="print models.<kind>.<split>.<metric> and storage")
 

@@ -24,7 +24,7 @@ from prt_torch.eval.shading import (
     lambert_rpo,
     phong_rpo,
     shade,
-    shading_vectors,
+    shading_set,
     unshadowed_visibility,
 )
 from prt_torch.fit.data import SplitData, load_split
@@ -88,7 +88,7 @@ def split_metrics(pred: np.ndarray, truth: np.ndarray, clip_id: np.ndarray,
     return out
 
 
-def evaluate_run(run_dir: str | Path, dataset: str | Path | None = None, max_frames: int | None = 48,
+def evaluate_run(run_dir: str | Path, dataset: str | Path | None = None, max_frames: int | None = 32,
                  kinds: list[str] | None = None, shared_data: Path | None = None,
                  progress: Any = None) -> Evaluation:
     """Evaluate every trained kind of ``run_dir`` on up to ``max_frames`` frames per split."""
@@ -119,8 +119,7 @@ def evaluate_run(run_dir: str | Path, dataset: str | Path | None = None, max_fra
         ev.splits[split] = sp
         if progress is not None:
             progress.console.log(f"{split}: {sp.n_frames} frames, shading under {len(lights)} lights x 2 RPOs")
-        sh = {f"{ln}/{rn}": shading_vectors(sp.extra["frames"], l, r) for ln, l in lights.items()
-              for rn, r in rpos.items()}
+        sh = shading_set(sp.extra["frames"], lights, rpos)
         ev.shading[split] = sh
         preds = {k: m.predict(sp.pose).numpy() for k, m in models.items()}
         preds["noshadow"] = unshadowed_visibility(sp.visibility.shape[1], order, sp.n_frames)

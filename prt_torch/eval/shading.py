@@ -14,9 +14,9 @@ no shadowing) as ``L = sum_c a[..., c, :] v[..., c]``:
   ``phong``: normalised Phong lobe ``(s+2)/(2 pi) max(r(wo) . wi, 0)^s`` (``k = 8`` terms).
 
 The view is a fixed world direction toward the camera; for the glossy RPO vertices facing away
-(``wo.z <= 0``) get zero radiance (the diffuse one is view-independent). Environment lights: ``uffizi`` and ``mondello`` from
-``../shared/data/envmaps`` when present, a procedural CIE sky, and procedural fallbacks so that
-there are always at least three.
+(``wo.z <= 0``) get zero radiance (the diffuse one is view-independent). Environment lights:
+``uffizi`` and ``mondello`` from ``../shared/data/envmaps`` when present, a procedural CIE sky,
+and procedural fallbacks so that there are always at least three.
 """
 
 from __future__ import annotations
@@ -103,31 +103,47 @@ def default_lights(order: int, shared_data: Path | None = None) -> dict[str, np.
     return lights
 
 
-def shading_vectors(frames: np.ndarray, light: np.ndarray, rpo: RPO, view: np.ndarray = DEFAULT_VIEW) -> np.ndarray:
-    """``a (F, V, C, 3)`` with radiance ``L = einsum('fvc,fvcr->fvr', v, a)``.
+def shading_set(frames: np.ndarray, lights: dict[str, np.ndarray], rpos: dict[str, RPO],
+                view: np.ndarray = DEFAULT_VIEW, chunk: int = 16384) -> dict[str, np.ndarray]:
+    """Shading vectors ``{"<light>/<rpo>": a (F, V, C, 3) float32}`` with radiance
+    ``L = einsum('fvc,fvcr->fvr', v, a)``; the SH rotations ``D(F)`` are computed once per chunk
+    of vertices and shared by every light and RPO.
 
-    ``frames (F, V, 3, 3)`` local frames (rows t, b, n, world), ``light (C, 3)`` world SH.
+    ``frames (F, V, 3, 3)`` local frames (rows t, b, n, world), lights ``(C, 3)`` world SH.
     """
     frames = np.asarray(frames, dtype=np.float64)
     check(frames.ndim == 4 and frames.shape[2:] == (3, 3), f"frames: expected (F, V, 3, 3), got {frames.shape}")
-    c = rpo.M.shape[-1]
-    check(light.shape == (c, 3), f"light: expected ({c}, 3) SH for order {rpo.order}, got {light.shape}")
+    check(bool(np.isfinite(frames).all()), "frames contain NaN or Inf")
+    order = next(iter(rpos.values())).order
+    c = order * order
+    for name, light in lights.items():
+        check(light.shape == (c, 3), f"light '{name}': expected ({c}, 3) SH for order {order}, got {light.shape}")
     f, v = frames.shape[:2]
-    # orthonormalise (float32 storage) so the rotation is exact
-    u_, _, vt = np.linalg.svd(frames.reshape(-1, 3, 3))
-    r = u_ @ vt
-    det = np.linalg.det(r)
-    r[det < 0] *= -1  # should not happen for right-handed frames
-    d = sh_rotation(r, rpo.order, check=False)  # (FV, C, C)
-    l_local = d @ light  # (FV, C, 3)
-    wo = r @ view  # (FV, 3) local view direction
-    yo = sh_basis(wo / np.linalg.norm(wo, axis=1, keepdims=True), rpo.order, check=False)
-    weight = yo @ rpo.w.T  # (FV, k)
-    if rpo.name != "lambert":  # view-dependent: no radiance toward a camera below the surface
-        weight = weight * (wo[:, 2:3] > 0)
-    ml = np.einsum("kij,njr->nkir", rpo.M, l_local)  # (FV, k, C, 3)
-    a = np.einsum("nk,nkir->nir", weight, ml)
-    return a.reshape(f, v, c, 3)
+    flat = frames.reshape(-1, 3, 3)
+    out = {f"{ln}/{rn}": np.empty((f * v, c, 3), dtype=np.float32) for ln in lights for rn in rpos}
+    for lo in range(0, flat.shape[0], chunk):
+        hi = min(lo + chunk, flat.shape[0])
+        # orthonormalise (float32 storage) so the rotation is exact
+        u_, _, vt = np.linalg.svd(flat[lo:hi])
+        r = u_ @ vt
+        r[np.linalg.det(r) < 0] *= -1  # should not happen for right-handed frames
+        d = sh_rotation(r, order, check=False)  # (n, C, C)
+        wo = r @ view  # (n, 3) local view direction
+        yo = sh_basis(wo / np.linalg.norm(wo, axis=1, keepdims=True), order, check=False)
+        for ln, light in lights.items():
+            l_local = d @ light  # (n, C, 3)
+            for rn, rpo in rpos.items():
+                weight = yo @ rpo.w.T  # (n, k)
+                if rpo.name != "lambert":  # view-dependent: no radiance toward a camera below the surface
+                    weight = weight * (wo[:, 2:3] > 0)
+                mw = np.einsum("nk,kij->nij", weight, rpo.M)  # (n, C, C)
+                out[f"{ln}/{rn}"][lo:hi] = mw @ l_local
+    return {k: a.reshape(f, v, c, 3) for k, a in out.items()}
+
+
+def shading_vectors(frames: np.ndarray, light: np.ndarray, rpo: RPO, view: np.ndarray = DEFAULT_VIEW) -> np.ndarray:
+    """``a (F, V, C, 3)`` for one light and one RPO (see :func:`shading_set`)."""
+    return shading_set(frames, {"l": np.asarray(light, dtype=np.float64)}, {"r": rpo}, view)["l/r"].astype(np.float64)
 
 
 def shade(v: np.ndarray, a: np.ndarray) -> np.ndarray:
