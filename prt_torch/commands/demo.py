@@ -107,14 +107,17 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.player import Player
 
     t0 = time.perf_counter()
-    console.print(f"[bold]4/5 play[/] held-out clip '{clip}' with onnxruntime -> {run_dir / 'heldout.mp4'}")
     player = Player(run_dir, env=args.env, brdf=args.brdf, window_size=(h, w))
     try:
+        console.print(f"[bold]4/5 compare[/] held-out '{clip}': truth | model | unshadowed -> "
+                      f"{run_dir / 'comparison.png'}")
         comp = compare_heldout(player, dataset, clip, console)
+        seconds["compare"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        console.print(f"[bold]5/5 play[/] held-out clip '{clip}' with onnxruntime -> {run_dir / 'heldout.mp4'}")
         res = player.play(clip, out=run_dir / "heldout.mp4", frames=args.frames,
                           timings=run_dir / "heldout.timings.json")
         seconds["play"] = time.perf_counter() - t0
-        console.print(f"[bold]5/5 compare[/] -> {run_dir / 'comparison.png'}")
     finally:
         player.close()
     fit_metrics = json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").is_file() else {}
