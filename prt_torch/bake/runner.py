@@ -250,7 +250,8 @@ def prepare(cfg: RunConfig, plan: BakePlan | None = None) -> tuple[Path, BakePla
     return path, plan
 
 
-def _tasks(path: Path, plan: BakePlan) -> list[BlockTask]:
+def block_tasks(path: Path, plan: BakePlan) -> list[BlockTask]:
+    """One task per chunk-aligned block of frames that is not completely done."""
     import zarr
 
     done_arr = zarr.open_group(str(path), mode="r")["done"]
@@ -309,7 +310,7 @@ def run_bake(
 ) -> BakeResult:
     """Bake (or resume) a run's dataset; see :func:`bake`. Returns what was done and how fast."""
     path, plan = prepare(cfg)
-    tasks = _tasks(path, plan)
+    tasks = block_tasks(path, plan)
     total = plan.n_frames
     todo = sum(t.f1 - t.f0 for t in tasks)
     scheduler = scheduler if scheduler is not None else cfg.bake.scheduler

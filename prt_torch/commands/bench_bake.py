@@ -4,9 +4,11 @@ Three measurements in one run, on the built-in character posed by random poses:
 
 * ``raw``: Embree ``OCCLUDED`` queries alone, one process, on every frame's exact rays
   (scene, origins and directions prepared beforehand, not timed), in the bake's ray blocks;
-* ``bake``: the full bake of ``--frames`` frames in ONE process (skinning, vertex frames, ray
-  generation, tracing, SH projection, zarr writes; store creation and clustering excluded);
-  ``ratio = bake rays/s / raw rays/s`` (same core, same rays per frame);
+* ``bake``: the full per-block bake task in ONE process (skinning, vertex frames, ray generation,
+  tracing, SH projection, zarr chunk writes; store creation and clustering excluded), timed
+  block by block alternately with ``raw`` on the same frames (``--rounds`` passes), so that a
+  shared machine's drifting load hits both alike; ``ratio`` = median over blocks of
+  ``bake rays/s / raw rays/s`` (and ``ratio_of_totals``), BLAS single-threaded in both;
 * ``pool``: the same bake with ``--workers`` processes (default: one per core), worker start-up
   included -> ``frames_per_s`` and its rays/s.
 """
@@ -29,21 +31,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--order", type=int, default=4, help="SH order")
     parser.add_argument("--frames", type=int, default=16, help="frames baked per measurement")
     parser.add_argument("--workers", type=int, default=0, help="processes of the pool measurement (0: one per core)")
-    parser.add_argument("--rounds", type=int, default=2, help="alternated raw/bake rounds (best of each is kept)")
+    parser.add_argument("--rounds", type=int, default=3, help="passes over the frames (raw and bake alternated)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
-    import zarr
     from rich.console import Console
+    from threadpoolctl import threadpool_limits
 
     from prt_torch.bake.directions import rotated_frames, world_directions
     from prt_torch.bake.embree import RayScene
     from prt_torch.bake.frame import RaySet
     from prt_torch.bake.frames import local_frames
     from prt_torch.bake.plan import make_plan
-    from prt_torch.bake.runner import prepare, run_bake
+    from prt_torch.bake.runner import bake_block, block_tasks, prepare, run_bake
     from prt_torch.bake.store import open_dataset
     from prt_torch.config import config_from_dict
     from prt_torch.errors import PrtError
@@ -75,44 +77,59 @@ def run(args: argparse.Namespace) -> int:
         offset = float(ds.attrs["bake"]["ray_offset_world"])
         block = max(1, int(ds.attrs["bake"]["vertex_chunk_rays"]) // args.rays)
 
-        def raw_pass() -> float:
-            raw_s = 0.0
-            n_raw = 0
-            for f in range(plan.n_frames):
-                pos, fr = pos_all[f], fr_all[f]
-                scene = RayScene(pos, ch.faces)
-                for v0 in range(0, V, block):
-                    v1 = min(V, v0 + block)
-                    d = np.ascontiguousarray(
-                        world_directions(rays.local, rotated_frames(fr[v0:v1], rays.phi[v0:v1])).reshape(-1, 3))
-                    o = np.empty((args.rays, v1 - v0, 3), np.float32)
-                    o[:] = (pos[v0:v1] + offset * fr[v0:v1, 2]).astype(np.float32)
-                    o = o.reshape(-1, 3)
-                    t0 = time.perf_counter()
-                    scene.occluded(o, d)
-                    raw_s += time.perf_counter() - t0
-                    n_raw += len(o)
-            return n_raw / raw_s
+        def raw_seconds(f: int) -> tuple[float, int]:
+            """Embree time for frame ``f``'s exact rays (scene and rays built untimed)."""
+            pos, fr = pos_all[f], fr_all[f]
+            scene = RayScene(pos, ch.faces)
+            secs, n = 0.0, 0
+            for v0 in range(0, V, block):
+                v1 = min(V, v0 + block)
+                d = np.ascontiguousarray(
+                    world_directions(rays.local, rotated_frames(fr[v0:v1], rays.phi[v0:v1])).reshape(-1, 3))
+                o = np.empty((args.rays, v1 - v0, 3), np.float32)
+                o[:] = (pos[v0:v1] + offset * fr[v0:v1, 2]).astype(np.float32)
+                o = o.reshape(-1, 3)
+                t0 = time.perf_counter()
+                scene.occluded(o, d)
+                secs += time.perf_counter() - t0
+                n += len(o)
+            return secs, n
 
-        # -- raw and single-process bake, alternated; best of --rounds each (the machine may be shared) --
-        raw_rps = 0.0
-        single = None
+        # -- raw vs single-process bake, paired block by block (robust to a shared, drifting machine) --
+        # BLAS single-threaded as in the bake tasks: idle OpenBLAS threads spin and would slow the raw trace
+        limits = threadpool_limits(limits=1)
+        tasks = block_tasks(path, plan)
+        bake_block(tasks[0])  # warm-up: builds the per-process context (character, clusters, ray set)
+        raw_s = bake_s = 0.0
+        n_rays = n_frames = 0
+        block_ratios = []
         for _ in range(args.rounds):
-            raw_rps = max(raw_rps, raw_pass())
-            zarr.open_group(str(path), mode="r+")["done"][:] = np.zeros(plan.n_frames, dtype=bool)
-            res = run_bake(cfg1, workers=1, progress=False)
-            if single is None or res.rays_per_s > single.rays_per_s:
-                single = res
-        assert single is not None
-        ratio = single.rays_per_s / raw_rps
+            for task in tasks:
+                r_s = 0.0
+                for f in range(task.f0, task.f1):
+                    secs, n = raw_seconds(f)
+                    r_s += secs
+                    n_rays += n
+                t0 = time.perf_counter()
+                bake_block(task)  # skin, frames, rays, trace, project, write the block's chunks + done
+                b_s = time.perf_counter() - t0
+                raw_s += r_s
+                bake_s += b_s
+                block_ratios.append(r_s / b_s)
+                n_frames += task.f1 - task.f0
+        limits.restore_original_limits()
+        raw_rps = n_rays / raw_s
+        single_rps = n_rays / bake_s
+        single_fps = n_frames / bake_s
+        ratio = float(np.median(block_ratios))  # per-block pairs: robust to load bursts on a shared machine
 
         # -- pool: all cores, worker start-up included -------------------------------------------------
         pooled = run_bake(config_from_dict(config("pool")), workers=workers, progress=False)
 
     result = {
         "vertices": V, "rays_per_vertex": args.rays, "order": args.order, "frames": args.frames,
-        "raw_rays_per_s": raw_rps, "rays_per_s": single.rays_per_s, "ratio": ratio,
-        "single_frames_per_s": single.frames_per_s,
+        "raw_rays_per_s": raw_rps, "rays_per_s": single_rps, "ratio": ratio, "ratio_of_totals": single_rps / raw_rps,
+        "single_frames_per_s": single_fps,
         "workers": workers, "frames_per_s": pooled.frames_per_s, "pool_rays_per_s": pooled.rays_per_s,
         "pool_vs_raw_per_core": pooled.rays_per_s / (raw_rps * workers),
     }
@@ -120,8 +137,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result, indent=2, sort_keys=True))
     else:
         console.print(f"raw embreex occlusion (1 process): {raw_rps / 1e6:8.2f} Mrays/s")
-        console.print(f"bake end-to-end     (1 process): {single.rays_per_s / 1e6:8.2f} Mrays/s  "
-                      f"{single.frames_per_s:6.2f} frames/s   ratio {ratio:.3f}")
+        console.print(f"bake end-to-end     (1 process): {single_rps / 1e6:8.2f} Mrays/s  "
+                      f"{single_fps:6.2f} frames/s   ratio {ratio:.3f}")
         console.print(f"bake end-to-end ({workers} processes): {pooled.rays_per_s / 1e6:8.2f} Mrays/s  "
                       f"{pooled.frames_per_s:6.2f} frames/s   (vs {workers} x raw: "
                       f"{result['pool_vs_raw_per_core']:.3f}, start-up included)")
