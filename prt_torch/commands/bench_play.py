@@ -191,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
               f"{stream_s * 1e3:.3f} ms")
     t.add_row("bandwidth fraction (stream time / frame time)", f"{bandwidth_fraction:.3f}")
     t.add_row(f"batched B={b}: per call", f"{batch_s * 1e3:.1f} ms = {b / batch_s:.0f} character-frames/s")
-    console.print(t)
+    Console().print(t)  # the result table on stdout (progress went to stderr)
     return 0
 
 
