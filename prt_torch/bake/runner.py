@@ -291,8 +291,9 @@ def _run_dask(tasks: list[BlockTask], scheduler: str) -> Iterator[BlockStats]:
         raise PrtError("the Dask backend needs dask[distributed]") from None
     try:
         client = Client(scheduler, timeout="20s")
-    except OSError as exc:
-        raise PrtError(f"cannot connect to the Dask scheduler at {scheduler} ({exc})") from None
+    except (OSError, ValueError, TypeError) as exc:  # timeout, refused, malformed address
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise PrtError(f"cannot connect to the Dask scheduler at {scheduler!r} ({msg})") from None
     try:
         futures = [client.submit(bake_block, t, pure=False) for t in tasks]
         for fut in as_completed(futures):
