@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 
@@ -21,6 +23,7 @@ class TrainConfig(BaseModel):
     default_kind: str = "mlp"
     input_variance: float = Field(default=0.90, gt=0, le=1)
     output_variance: float = Field(default=0.95, gt=0, le=1)
+    output_pca: Literal["cluster", "global"] = "cluster"  # per-cluster (seed 003) or global (seed 000 sec. 5)
     whiten_inputs: bool = False  # measured: whitening hurts held-out error (noise dims get equal weight)
     folds: int = Field(default=4, ge=2)
     alphas: list[float] = Field(default_factory=lambda: [1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0])

@@ -30,6 +30,7 @@ from prt_torch.fit.mlp import fit_mlp
 from prt_torch.fit.ridge import fit_ridge_per_group, ridge_cv, ridge_path
 from prt_torch.io import atomic_path, atomic_write_json
 from prt_torch.models import (
+    GlobalUnprojection,
     InputProjection,
     LinearRegressor,
     MLPRegressor,
@@ -39,7 +40,7 @@ from prt_torch.models import (
     save_model,
 )
 from prt_torch.models.regressors import quadratic_features
-from prt_torch.reduce import PCA, ClusterPCA
+from prt_torch.reduce import PCA, ClusterPCA, GlobalOutputPCA
 
 
 @dataclass
@@ -47,7 +48,7 @@ class Reduced:
     """Reductions fitted on the training split and the reduced training data."""
 
     inp: PCA
-    out: ClusterPCA
+    out: ClusterPCA | GlobalOutputPCA
     x: np.ndarray  # (F, d)
     z: np.ndarray  # (F, G, Kmax)
     mask: np.ndarray  # (G, Kmax)
@@ -72,17 +73,24 @@ def _log(progress: Any, msg: str) -> None:
 def reduce_training(train: SplitData, cluster: np.ndarray, cfg: TrainConfig) -> Reduced:
     """Input PCA of the poses, per-cluster output PCA of the visibility, blocked folds."""
     inp = PCA.fit(train.pose, variance=cfg.input_variance, whiten=cfg.whiten_inputs, name="pose features")
-    out = ClusterPCA.fit(train.visibility, cluster, variance=cfg.output_variance)
+    if cfg.output_pca == "global":
+        out: ClusterPCA | GlobalOutputPCA = GlobalOutputPCA.fit(train.visibility, variance=cfg.output_variance)
+    else:
+        out = ClusterPCA.fit(train.visibility, cluster, variance=cfg.output_variance)
     folds = blocked_folds(train.clip_id, train.frame_index, cfg.folds)
     return Reduced(inp=inp, out=out, x=inp.reduce(train.pose), z=out.reduce(train.visibility), mask=out.mask,
                    folds=folds)
 
 
-def _ends(red: Reduced) -> tuple[InputProjection, OutputUnprojection]:
+def _ends(red: Reduced) -> tuple[InputProjection, OutputUnprojection | GlobalUnprojection]:
     proj = red.inp.components.T / red.inp.scale[None, :]
+    inp = InputProjection(red.inp.mean, proj)
+    if isinstance(red.out, GlobalOutputPCA):
+        p = red.out.pca
+        mean = np.repeat(p.mean[:, None], red.out.n_coeffs, axis=1).reshape(-1)  # (V, C) vertex-major
+        return inp, GlobalUnprojection(p.components * p.scale[:, None], mean, red.out.n_vertices, red.out.n_coeffs)
     basis, gather, mean = red.out.padded_basis()
-    return (InputProjection(red.inp.mean, proj),
-            OutputUnprojection(basis, gather, mean, red.out.n_vertices, red.out.n_coeffs))
+    return inp, OutputUnprojection(basis, gather, mean, red.out.n_vertices, red.out.n_coeffs)
 
 
 def fit_ridge_kind(kind: str, red: Reduced, alphas: list[float], fixed_alpha: float | None = None) -> FitResult:
@@ -221,6 +229,7 @@ def _metadata(info: DatasetInfo, cfg: TrainConfig, red: Reduced, fits: dict[str,
         "n_features": info.n_features,
         "reduced_inputs": red.inp.n_components,
         "input_retained": red.inp.retained,
+        "output_pca": cfg.output_pca,
         "output_dims": red.out.dims.tolist(),
         "output_width": red.out.width,
         "n_clusters": red.out.n_groups,

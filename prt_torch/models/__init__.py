@@ -3,7 +3,7 @@
 ``VisibilityModel`` (pose ``(B, A)`` -> visibility ``(B, V, C)``), ``load_model(run_dir, kind=None)``.
 """
 
-from prt_torch.models.projection import InputProjection, OutputUnprojection
+from prt_torch.models.projection import GlobalUnprojection, InputProjection, OutputUnprojection
 from prt_torch.models.regressors import (
     REGRESSORS,
     LinearRegressor,
@@ -24,6 +24,7 @@ from prt_torch.models.visibility import (
 __all__ = [
     "KINDS",
     "REGRESSORS",
+    "GlobalUnprojection",
     "InputProjection",
     "LinearRegressor",
     "MLPRegressor",

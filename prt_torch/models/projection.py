@@ -56,3 +56,24 @@ class OutputUnprojection(nn.Module):
         y = torch.einsum("bgk,gkl->bgl", z, self.basis).reshape(b, -1)
         out = y.index_select(1, self.gather) + self.mean
         return out.reshape(b, self.n_vertices, self.n_coeffs)
+
+
+class GlobalUnprojection(nn.Module):
+    """Seed 000 section 5 output: reduced ``z (B, 1, C * k)`` -> ``(B, V, C)``.
+
+    ``basis (k, V)`` shared by every SH coefficient (scaled components of the PCA over the
+    per-coefficient vertex vectors), ``mean (V * C,)``: ``v[:, :, c] = mean + z[:, c, :] @ basis``.
+    """
+
+    def __init__(self, basis: torch.Tensor | np.ndarray, mean: torch.Tensor | np.ndarray, n_vertices: int,
+                 n_coeffs: int) -> None:
+        super().__init__()
+        self.register_buffer("basis", torch.as_tensor(np.asarray(basis), dtype=torch.float32))
+        self.register_buffer("mean", torch.as_tensor(np.asarray(mean), dtype=torch.float32))
+        self.n_vertices = int(n_vertices)
+        self.n_coeffs = int(n_coeffs)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        b = z.shape[0]
+        y = z.reshape(b, self.n_coeffs, -1) @ self.basis  # (B, C, V)
+        return y.transpose(1, 2).reshape(b, -1).add(self.mean).reshape(b, self.n_vertices, self.n_coeffs)

@@ -22,7 +22,7 @@ from torch import nn
 
 from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path
-from prt_torch.models.projection import InputProjection, OutputUnprojection
+from prt_torch.models.projection import GlobalUnprojection, InputProjection, OutputUnprojection
 from prt_torch.models.regressors import REGRESSORS
 
 FORMAT = "prt_torch.visibility_model/1"
@@ -37,7 +37,8 @@ class VisibilityModel(nn.Module):
     (:class:`InputProjection`), ``regressor`` and ``out`` (:class:`OutputUnprojection`).
     """
 
-    def __init__(self, kind: str, inp: InputProjection, regressor: nn.Module, out: OutputUnprojection) -> None:
+    def __init__(self, kind: str, inp: InputProjection, regressor: nn.Module,
+                 out: OutputUnprojection | GlobalUnprojection) -> None:
         super().__init__()
         check(kind in REGRESSORS, f"unknown model kind '{kind}' (expected one of {sorted(REGRESSORS)})")
         self.kind = kind
@@ -83,6 +84,7 @@ class VisibilityModel(nn.Module):
             "n_vertices": self.n_vertices,
             "n_coeffs": self.n_coeffs,
             "basis_shape": list(self.out.basis.shape),
+            "output": "global" if isinstance(self.out, GlobalUnprojection) else "cluster",
         }
 
     @classmethod
@@ -92,10 +94,15 @@ class VisibilityModel(nn.Module):
         check(kind in REGRESSORS, f"unknown model kind '{kind}'")
         a, d = int(config["n_features"]), int(config["reduced_inputs"])
         v, c = int(config["n_vertices"]), int(config["n_coeffs"])
-        g, k, lmax = (int(s) for s in config["basis_shape"])
         inp = InputProjection(torch.zeros(a), torch.zeros(a, d))
-        out = OutputUnprojection(torch.zeros(g, k, lmax), torch.zeros(v * c, dtype=torch.int32),
-                                 torch.zeros(v * c), v, c)
+        out: OutputUnprojection | GlobalUnprojection
+        if config.get("output", "cluster") == "global":
+            k, _ = (int(s) for s in config["basis_shape"])
+            out = GlobalUnprojection(torch.zeros(k, v), torch.zeros(v * c), v, c)
+        else:
+            g, k, lmax = (int(s) for s in config["basis_shape"])
+            out = OutputUnprojection(torch.zeros(g, k, lmax), torch.zeros(v * c, dtype=torch.int32),
+                                     torch.zeros(v * c), v, c)
         reg = REGRESSORS[kind](**config["regressor"])
         return cls(kind, inp, reg, out)
 

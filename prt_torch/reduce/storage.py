@@ -26,11 +26,15 @@ def compact_floats(model: Any) -> int:
     """Number of real (unpadded) parameters of a :class:`prt_torch.models.VisibilityModel`."""
     inp, out, reg = model.inp, model.out, model.regressor
     n = inp.mean.numel() + inp.proj.numel() + out.mean.numel()
-    g, _, lmax = out.basis.shape
-    real_rows = (out.basis.abs().sum(-1) > 0)  # (G, Kmax)
-    dims = real_rows.sum(-1)  # (G,)
-    sizes = torch.bincount(out.gather // lmax, minlength=g)  # (G,) V_g * C
-    n += int((dims * sizes).sum())
+    if out.basis.ndim == 2:  # global output PCA: (k, V) basis shared by the coefficients, mean (V,)
+        n += out.basis.numel() - out.mean.numel() + out.n_vertices
+        dims = torch.tensor([reg.width])
+    else:
+        g, _, lmax = out.basis.shape
+        real_rows = (out.basis.abs().sum(-1) > 0)  # (G, Kmax)
+        dims = real_rows.sum(-1)  # (G,)
+        sizes = torch.bincount(out.gather.long() // lmax, minlength=g)  # (G,) V_g * C
+        n += int((dims * sizes).sum())
     if model.kind == "mlp":
         d = reg.hidden_weight.shape[2]
         used = reg.out_weight.abs().sum(1) > 0  # (G, N)

@@ -96,3 +96,20 @@ def test_bad_inputs_raise(small_run: Path, tmp_path: Path) -> None:
     bad.write_bytes(b"not a model")
     with pytest.raises(PrtError, match="not a prt_torch model file"):
         load_model_file(bad)
+
+
+def test_global_output_variant_trains_loads_and_counts(synthetic_dataset: Path, tmp_path: Path) -> None:
+    from prt_torch.fit.config import TrainConfig
+    from prt_torch.fit.train import train_dataset
+    from prt_torch.reduce.storage import compact_floats, state_bytes
+
+    train_dataset(synthetic_dataset, tmp_path, TrainConfig(kinds=["linear"], output_pca="global", alphas=[1.0]))
+    m = load_model(tmp_path, "linear")
+    meta = load_metadata(tmp_path)
+    k = m.out.basis.shape[0]
+    v, c, a, d = m.n_vertices, m.n_coeffs, m.n_features, m.inp.out_dim
+    assert m(torch.zeros(2, a)).shape == (2, v, c)
+    assert meta["output_dims"] == [c * k]
+    # packed: input PCA + per-vertex mean (V) + shared basis (k V) + weights/bias of C k outputs
+    assert compact_floats(m) == a + a * d + v + k * v + (d + 1) * c * k
+    assert state_bytes(m) == 4 * (a + a * d + v * c + k * v + (d + 1) * c * k)

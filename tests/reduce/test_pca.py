@@ -108,3 +108,16 @@ def test_global_output_pca_roundtrip() -> None:
 def test_bad_inputs_raise(call, match: str) -> None:  # noqa: ANN001
     with pytest.raises(PrtError, match=match):
         call()
+
+
+def test_global_unprojection_matches_numpy_expand() -> None:
+    from prt_torch.models import GlobalUnprojection
+
+    y, _ = _vis()
+    g = GlobalOutputPCA.fit(y, variance=0.9)
+    z = g.reduce(y)
+    p = g.pca
+    mean = np.repeat(p.mean[:, None], y.shape[2], axis=1).reshape(-1)
+    mod = GlobalUnprojection(p.components * p.scale[:, None], mean, y.shape[1], y.shape[2])
+    got = mod(torch.as_tensor(z, dtype=torch.float32)).numpy()
+    np.testing.assert_allclose(got, g.expand(z), atol=1e-4)
