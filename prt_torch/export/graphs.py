@@ -16,10 +16,11 @@ as the model gives it, radiance ``(B, V, 3)``.
 Shading, per vertex, with local lighting ``l (C, 3)``, visibility ``v (C,)``, local view ``wo``::
 
     a_b  = w_b . y(wo)                         (k,)    view factor of BRDF term b
-    z_b  = M_b v                               (k, C)  one GEMM for all vertices: v @ M^T
-    L_c  = tint_c * sum_b a_b * (l_c . z_b)    (3,)
+    zz   = sum_b a_b M_b v                     (C,)    = Mcat @ (a (x) v): an outer product, one GEMM
+    L_c  = tint_c * (l_c . zz)                 (3,)    (= tint_c sum_b a_b (l_c . M_b v), eq. 11)
 
-and the local lighting of ``K`` ZH lobes ``(s_K, g_K (n, 3))`` is ``l = sum_K g_K[band] * y(F s_K)``.
+and the local lighting of ``K`` ZH lobes ``(s_K, g_K (n, 3))`` is ``l = sum_K g_K[band] * y(F s_K)``;
+``L_c`` is computed as ``sum_{K, i} g_K[band i, c] zz_i y_i(F s_K)`` (one small GEMM).
 SH are evaluated as polynomials: a monomial table of the direction times a constant matrix
 (:func:`sh_polynomial`), one MatMul in the graph instead of a long chain of small ops.
 """
