@@ -39,7 +39,8 @@ def plot_spectra(input_explained: np.ndarray, output_explained: list[np.ndarray]
     e = input_explained / input_explained.sum()
     axes[0].semilogy(np.arange(1, len(e) + 1), e, "o-", ms=3)
     axes[0].axvline(input_k + 0.5, color="r", ls="--", label=f"kept {input_k}")
-    axes[0].set(title="input (pose) PCA", xlabel="component", ylabel="fraction of variance")
+    axes[0].set(title="input (pose) PCA", xlabel="component", ylabel="fraction of variance",
+                ylim=(max(float(e[e > 0].min()) if (e > 0).any() else 1e-12, 1e-10), 1.5))
     axes[0].legend()
     for ex in output_explained:
         ex = ex[ex > 0]
