@@ -250,8 +250,10 @@ class VisibilityGraph(nn.Module):
     def __init__(self, model: nn.Module, compact: bool = True, vertex_last: bool = False) -> None:
         super().__init__()
         self.model = model
+        from prt_torch.models.projection import OutputUnprojection
+
         self.compact = compact and all(hasattr(model, a) for a in ("inp", "regressor", "out")) \
-            and all(hasattr(model.out, a) for a in ("basis", "gather", "mean"))
+            and isinstance(model.out, OutputUnprojection)  # the per-cluster (padded) layout only
         self.vertex_last = vertex_last
         if self.compact:
             self.out = CompactUnprojection(model.out, vertex_last=vertex_last)
