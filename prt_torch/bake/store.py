@@ -89,6 +89,8 @@ def create_store(path: Path, arrays: dict[str, np.ndarray], per_frame: dict[str,
     if path.exists():
         raise PrtError(f"dataset already exists: {path}")
     path.parent.mkdir(parents=True, exist_ok=True)
+    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a creation that was killed
+        shutil.rmtree(stale, ignore_errors=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     try:
         g = zarr.open_group(str(tmp), mode="w-", zarr_format=3)

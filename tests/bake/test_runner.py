@@ -155,35 +155,43 @@ def test_rerun_skips_completed_frames(tmp_path: Path, reference: tuple[Path, dic
     assert_same(read_all(first.path), reference[1])
 
 
-def test_sigkill_midway_then_resume_equals_uninterrupted(tmp_path: Path, reference: tuple[Path, dict]) -> None:
+@pytest.mark.parametrize("when", ["early", "midway"])
+def test_sigkill_then_resume_equals_uninterrupted(tmp_path: Path, reference: tuple[Path, dict], when: str) -> None:
+    """SIGKILL a real bake subprocess (early: as soon as its run directory appears, i.e. while the
+    character/store are being written; midway: after >= 1 block is done), resume, compare bitwise."""
     cfg_path = tmp_path / "tiny.json"
     cfg_path.write_text(json.dumps(tiny_config(tmp_path / "run")))
     code = ("import json, sys; from prt_torch.config import config_from_dict; from prt_torch.bake.runner import bake; "
             "bake(config_from_dict(json.load(open(sys.argv[1]))), workers=1, progress=False)")
     proc = subprocess.Popen([sys.executable, "-c", code, str(cfg_path)])
-    done_path = tmp_path / "run" / "dataset.zarr"
+    run_dir = tmp_path / "run"
+    done_path = run_dir / "dataset.zarr"
     killed_at = None
     deadline = time.monotonic() + 120
     try:
         while time.monotonic() < deadline and proc.poll() is None:
-            if (done_path / "zarr.json").exists():
+            if when == "early" and run_dir.exists():
+                os.kill(proc.pid, signal.SIGKILL)
+                killed_at = 0
+                break
+            if when == "midway" and (done_path / "zarr.json").exists():
                 done = np.asarray(zarr.open_group(str(done_path), mode="r")["done"][:])
                 if 4 <= done.sum() < len(done):  # at least one block in, some still to go
                     os.kill(proc.pid, signal.SIGKILL)
                     killed_at = int(done.sum())
                     break
-            time.sleep(0.02)
+            time.sleep(0.005)
     finally:
         if proc.poll() is None and killed_at is None:
             os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
     if killed_at is None:
-        pytest.fail("the bake finished before it could be killed mid-way")
+        pytest.fail(f"the bake finished before it could be killed ({when})")
     assert proc.returncode == -signal.SIGKILL
-    res = run_bake(config_from_dict(tiny_config(tmp_path / "run")), workers=1, progress=False)
+    res = run_bake(config_from_dict(tiny_config(run_dir)), workers=1, progress=False)
     assert res.skipped >= killed_at and res.frames + res.skipped == len(reference[1]["done"])
     assert_same(read_all(res.path), reference[1])
-    assert not list(res.path.rglob("*.partial"))
+    assert not list(res.path.rglob("*.partial")) and not list(run_dir.glob(".dataset.zarr.tmp-*"))
 
 
 def _snapshot(root: Path) -> dict[str, int]:
