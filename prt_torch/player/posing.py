@@ -70,6 +70,8 @@ class Poser:
         self.rest = np.ascontiguousarray(character.rest_vertices.T, dtype=np.float32)  # (3, V)
         self.rest_n = np.ascontiguousarray(character.rest_normals.T, dtype=np.float32)
         self.n_vertices = v
+        self._axes2 = np.stack([self.axes, self.fallback])  # (2, Kc, 3) float64
+        self._buffers: tuple[np.ndarray, np.ndarray] | None = None
 
     def __call__(self, local: np.ndarray, eye: np.ndarray) -> PoseBatch:
         """Pose ``local (B, J, 4, 4)`` joint transforms; ``eye (3,)`` camera position for the view directions."""
@@ -86,43 +88,67 @@ class Poser:
         skin = forward_kinematics(ch.parents, local) @ ch.inverse_bind[None]  # (B, J, 4, 4) float64
         rows = skin[:, :, :3, :].reshape(b, -1, 12).transpose(0, 2, 1).astype(np.float32)  # (B, 12, J)
         blend = rows @ self.w_t  # (B, 12, V): blended 3x4 matrix entries, vertex-last
-        x, y, z = self.rest
-        nx, ny, nz = self.rest_n
-        pos = np.empty((b, 3, self.n_vertices), np.float32)
-        nrm = np.empty_like(pos)
-        for i in range(3):
-            r = 4 * i
-            pos[:, i] = blend[:, r] * x + blend[:, r + 1] * y + blend[:, r + 2] * z + blend[:, r + 3]
-            nrm[:, i] = blend[:, r] * nx + blend[:, r + 1] * ny + blend[:, r + 2] * nz
-        nrm *= 1.0 / np.maximum(np.sqrt(np.einsum("biv,biv->bv", nrm, nrm)), 1e-12)[:, None, :]
-        # cluster axes carried by their bones, gathered per vertex
+        v = self.n_vertices
+        mul, add = np.multiply, np.add
+        s1, s3 = self._scratch(b)  # (B, V) and (B, 3, V) float32 scratch, reused between calls
+        # LBS: blend viewed as (B, 3, 4, V): pos_i = sum_j blend[i, j] X_j (X = x, y, z, 1), normals without j = 3
+        bm = blend.reshape(b, 3, 4, v)
+        pos = np.empty((b, 3, v), np.float32)
+        nrm = np.empty((b, 3, v), np.float32)
+        mul(bm[:, :, 0], self.rest[0], out=pos)
+        add(pos, bm[:, :, 3], out=pos)
+        mul(bm[:, :, 0], self.rest_n[0], out=nrm)
+        for j in (1, 2):
+            mul(bm[:, :, j], self.rest[j], out=s3)
+            add(pos, s3, out=pos)
+            mul(bm[:, :, j], self.rest_n[j], out=s3)
+            add(nrm, s3, out=nrm)
+        _normalize(nrm, s1, s3)
+        # cluster axes carried by their bones (Kc of them, float64), gathered per vertex in one take
         rot = skin[:, self.bones, :3, :3]  # (B, Kc, 3, 3)
-        a_c = np.einsum("bkij,kj->bki", rot, self.axes)
-        p_c = np.einsum("bkij,kj->bki", rot, self.fallback)
-        a_c /= np.maximum(np.linalg.norm(a_c, axis=-1, keepdims=True), 1e-12)
-        p_c /= np.maximum(np.linalg.norm(p_c, axis=-1, keepdims=True), 1e-12)
-        a = a_c.transpose(0, 2, 1).astype(np.float32)[:, :, self.labels]  # (B, 3, V)
-        p = p_c.transpose(0, 2, 1).astype(np.float32)[:, :, self.labels]
-        ta = a - np.einsum("biv,biv->bv", a, nrm)[:, None] * nrm
-        tp = p - np.einsum("biv,biv->bv", p, nrm)[:, None] * nrm
-        la = np.sqrt(np.einsum("biv,biv->bv", ta, ta))
-        w = np.clip(1.0 - la / self.fallback_below, 0.0, 1.0)
-        t = ta + w[:, None] * tp
-        lt = np.sqrt(np.einsum("biv,biv->bv", t, t))
+        ap = np.einsum("bkij,mkj->bmik", rot, self._axes2)  # (B, 2, 3, Kc): [axis; fallback]
+        ap /= np.maximum(np.sqrt((ap * ap).sum(axis=2, keepdims=True)), 1e-12)
+        ap = np.take(ap.astype(np.float32), self.labels, axis=3)  # (B, 2, 3, V)
+        a, p = ap[:, 0], ap[:, 1]
+        # tangents of both axes: x - (x . n) n, in place
+        for x in (a, p):
+            _dot(x, nrm, s1, s3)
+            mul(nrm, s1[:, None], out=s3)
+            x -= s3
+        la = _dot(a, a, s1, s3)
+        np.sqrt(la, out=la)
+        # fallback weight w = clip(1 - |ta| / FALLBACK_BELOW, 0, 1): t = ta + w tp
+        mul(la, -1.0 / self.fallback_below, out=la)
+        la += 1.0
+        np.clip(la, 0.0, 1.0, out=la)
+        mul(p, la[:, None], out=p)
+        t = add(a, p, out=a)
+        lt = np.sqrt(_dot(t, t, s1, s3))
         if (lt < 1e-6).any():  # measure-zero coincidence: use the reference implementation there
             t = self._degenerate(t, nrm, lt)
-            lt = np.sqrt(np.einsum("biv,biv->bv", t, t))
-        t /= lt[:, None]
-        frames = np.empty((b, 9, self.n_vertices), np.float32)
-        frames[:, 0:3] = t
-        frames[:, 3] = nrm[:, 1] * t[:, 2] - nrm[:, 2] * t[:, 1]  # b = n x t
-        frames[:, 4] = nrm[:, 2] * t[:, 0] - nrm[:, 0] * t[:, 2]
-        frames[:, 5] = nrm[:, 0] * t[:, 1] - nrm[:, 1] * t[:, 0]
+            lt = np.sqrt(_dot(t, t, s1, s3))
+        frames = np.empty((b, 9, v), np.float32)
+        np.divide(t, lt[:, None], out=frames[:, 0:3])
+        t = frames[:, 0:3]
+        # b = n x t
+        mul(nrm[:, 1], t[:, 2], out=frames[:, 3])
+        frames[:, 3] -= mul(nrm[:, 2], t[:, 1], out=s1)
+        mul(nrm[:, 2], t[:, 0], out=frames[:, 4])
+        frames[:, 4] -= mul(nrm[:, 0], t[:, 2], out=s1)
+        mul(nrm[:, 0], t[:, 1], out=frames[:, 5])
+        frames[:, 5] -= mul(nrm[:, 1], t[:, 0], out=s1)
         frames[:, 6:9] = nrm
-        view = np.asarray(eye, dtype=np.float32).reshape(1, 3, 1) - pos
-        view *= 1.0 / np.maximum(np.sqrt(np.einsum("biv,biv->bv", view, view)), 1e-12)[:, None, :]
+        view = np.subtract(np.asarray(eye, dtype=np.float32).reshape(1, 3, 1), pos)
+        _normalize(view, s1, s3)
         feats = pose_features(local, ch.bind_local, ch.parents)
         return PoseBatch(pos, nrm, frames, view, np.ascontiguousarray(feats, dtype=np.float32))
+
+    def _scratch(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(B, V)`` and ``(B, 3, V)`` float32 scratch buffers, allocated once per batch size."""
+        if self._buffers is None or self._buffers[0].shape[0] != b:
+            self._buffers = (np.empty((b, self.n_vertices), np.float32),
+                             np.empty((b, 3, self.n_vertices), np.float32))
+        return self._buffers
 
     @staticmethod
     def _degenerate(t: np.ndarray, nrm: np.ndarray, lt: np.ndarray) -> np.ndarray:
@@ -132,3 +158,19 @@ class Poser:
         alt = np.cross(n, np.eye(3, dtype=np.float32)[np.argmin(np.abs(n), axis=-1)])
         t[bi, :, vi] = alt
         return t
+
+
+def _dot(a: np.ndarray, b: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
+    """``out (B, V) = sum_i a[:, i] * b[:, i]`` for ``(B, 3, V)`` arrays (``tmp (B, 3, V)`` scratch)."""
+    np.multiply(a, b, out=tmp)
+    np.add(tmp[:, 0], tmp[:, 1], out=out)
+    return np.add(out, tmp[:, 2], out=out)
+
+
+def _normalize(x: np.ndarray, s1: np.ndarray, s3: np.ndarray) -> None:
+    """Normalise the ``(B, 3, V)`` vectors ``x`` in place (lengths clamped at 1e-12)."""
+    n = _dot(x, x, s1, s3)
+    np.sqrt(n, out=n)
+    np.maximum(n, 1e-12, out=n)
+    np.divide(1.0, n, out=n)
+    np.multiply(x, n[:, None], out=x)
