@@ -3,14 +3,18 @@
 Measured in one run on the exported run (default ``runs/demo``: built-in character ~11.7k vertices,
 order 4, MLP model) with an 8-term RPO (``phong``):
 
-* per-frame path (numpy FK + LBS + frames + pose features -> ORT -> radiance), fused graph and
-  split graphs (visibility then shading), interleaved frame by frame; median over ``--frames``;
+* per-frame path (numpy FK + LBS + frames + pose features -> ORT -> radiance), fused graph, split
+  graphs (visibility then shading), interleaved frame by frame; median over ``--frames``; the faster
+  one is ``fps``; then the fused graph with spinning ORT threads (``fused_spin``, a second player) in
+  alternating blocks against the non-spinning one (``fused_blocks``);
 * (a) ray tracing the same frames' visibility with Embree (``prt_torch.bake.frame.bake_frame``, the
-  bake's per-frame path with the run's ``n_rays``) and shading it: ``speedup_vs_raytrace``;
+  bake's per-frame path, ``--rays`` 512 by default as in the bake config) and shading it: ``speedup_vs_raytrace``;
 * (b) the model's bytes (ONNX initializers + RPO tensors) over the machine's measured copy bandwidth
   (large ``numpy.copyto``): ``bandwidth_fraction = stream time / frame time`` (1.0 = the frame costs
   no more than streaming the weights once);
-* batched playback of 32 characters per call: character-frames/s.
+* batched playback of 32 characters per call: character-frames/s;
+* a floor: the shading's multiply-adds at numpy's measured float32 GEMM rate (2 threads) plus the
+  stream time of (b).
 """
 
 from __future__ import annotations
@@ -32,10 +36,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=20)
     parser.add_argument("--brdf", default="phong", help="RPO of the run (default phong, 8 terms)")
     parser.add_argument("--raytrace-frames", type=int, default=3, help="frames ray-traced for the baseline")
-    parser.add_argument("--rays", type=int, default=None,
-                        help="rays per vertex of the ray-traced baseline (default: the run's bake n_rays)")
+    parser.add_argument("--rays", type=int, default=512,
+                        help="rays per vertex of the ray-traced baseline (default 512, the bake config default; "
+                             "0: the run's own bake n_rays)")
     parser.add_argument("--batch", type=int, default=32, help="characters per call for the batched figure")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    parser.add_argument("--no-spinning", action="store_true",
+                        help="skip the 'fused_spin' blocks (onnxruntime threads busy-waiting between calls)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -54,6 +61,42 @@ def copy_bandwidth(n_bytes: int = 1 << 28, repeats: int = 5) -> float:
         np.copyto(b, a)
         best = min(best, time.perf_counter() - t0)
     return a.nbytes / best
+
+
+def gemm_rate(n_vertices: int, n_coeffs: int, n_terms: int, threads: int, repeats: int = 25) -> float:
+    """Best-of-``repeats`` FLOP/s of numpy's float32 GEMM of the shading's RPO step
+    ``(C, k*C) @ (k*C, V)`` with ``threads`` BLAS threads (the compute-rate ceiling of that step)."""
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((n_coeffs, n_terms * n_coeffs)).astype(np.float32)
+    x = rng.standard_normal((n_terms * n_coeffs, n_vertices)).astype(np.float32)
+    out = np.empty((n_coeffs, n_vertices), np.float32)
+    best = float("inf")
+    with threadpool_limits(limits=max(1, threads), user_api="blas"):
+        np.matmul(a, x, out=out)
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            np.matmul(a, x, out=out)
+            best = min(best, time.perf_counter() - t0)
+    return 2.0 * a.shape[0] * a.shape[1] * n_vertices / best
+
+
+def frame_floor(n_vertices: int, order: int, n_terms: int, n_lobes: int, stream_s: float,
+                gemm_flops: float) -> dict[str, float]:
+    """A lower bound on the model's frame time: the shading's multiply-adds at the measured GEMM rate plus
+    streaming the model's bytes once (they do not overlap in the sequential graph).
+
+    Per vertex the shading needs ``k C^2`` MACs for ``sum_b a_b M_b v`` (dense RPO), ``P C`` per lobe for
+    the lobe SH (``P`` monomials of degree ``< order``), ``P k`` for the view factors and ``3 K C`` for
+    the lighting dot products; everything else is elementwise.
+    """
+    c = order * order
+    p = order * (order + 1) * (order + 2) // 6
+    macs = n_vertices * (n_terms * c * c + n_terms * c + n_lobes * p * c + p * n_terms + 3 * n_lobes * c)
+    shading_s = 2.0 * macs / gemm_flops
+    return {"shading_gflop": 2e-9 * macs, "shading_ms": shading_s * 1e3, "stream_ms": stream_s * 1e3,
+            "floor_ms": (shading_s + stream_s) * 1e3}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,33 +118,54 @@ def run(args: argparse.Namespace) -> int:
     locals_ = player.clip_locals(clip)
     n_clip = len(locals_)
 
-    # -- per-frame path, fused vs split, interleaved -----------------------------------------
+    # -- per-frame path, fused vs split, interleaved frame by frame ---------------------------------
     steps: dict[str, dict[str, list[float]]] = {"fused": {"pose": [], "fused": [], "total": []},
                                                 "split": {"pose": [], "visibility": [], "shading": [], "total": []}}
+
+    def frame(pl: Player, mode: str, loc: np.ndarray) -> dict[str, float]:
+        pl.graph = "split" if mode == "split" else "fused"
+        t0 = time.perf_counter()
+        state = pl.pose(loc)
+        t1 = time.perf_counter()
+        if mode != "split":
+            pl.shade(state, checked=False)
+            return {"pose": t1 - t0, "fused": time.perf_counter() - t1}
+        vis = pl.visibility(state.features, checked=False)
+        t2 = time.perf_counter()
+        pl.shade(state, visibility=vis, checked=False)
+        return {"pose": t1 - t0, "visibility": t2 - t1, "shading": time.perf_counter() - t2}
+
+    def record(mode: str, parts: dict[str, float]) -> None:
+        for k, v in parts.items():
+            steps[mode][k].append(v)
+        steps[mode]["total"].append(sum(parts.values()))
+
     with console.status(f"timing {args.frames} frames per mode on '{clip}' ..."):
         for i in range(args.warmup + args.frames):
             loc = locals_[i % n_clip:i % n_clip + 1]
             for mode in ("fused", "split"):
-                player.graph = mode
-                t0 = time.perf_counter()
-                state = player.pose(loc)
-                t1 = time.perf_counter()
-                if mode == "fused":
-                    player.shade(state, checked=False)
-                    t2 = time.perf_counter()
-                    parts = {"pose": t1 - t0, "fused": t2 - t1}
-                else:
-                    vis = player.visibility(state.features, checked=False)
-                    t2 = time.perf_counter()
-                    player.shade(state, visibility=vis, checked=False)
-                    t3 = time.perf_counter()
-                    parts = {"pose": t1 - t0, "visibility": t2 - t1, "shading": t3 - t2}
+                parts = frame(player, mode, loc)
                 if i >= args.warmup:
-                    for k, v in parts.items():
-                        steps[mode][k].append(v)
-                    steps[mode]["total"].append(sum(parts.values()))
+                    record(mode, parts)
+    # spinning ORT threads busy-wait between calls and would slow any mode interleaved with them: timed in
+    # alternating blocks of frames against the (non-spinning) fused player instead
+    if not args.no_spinning:
+        spin = Player(run_dir, brdf=args.brdf, graph="fused", threads=args.threads, spinning=True)
+        steps["fused_spin"] = {"pose": [], "fused": [], "total": []}
+        steps["fused_blocks"] = {"pose": [], "fused": [], "total": []}
+        block = max(5, args.frames // 4)
+        with console.status("timing fused with spinning onnxruntime threads (alternating blocks) ..."):
+            for rep in range(4):
+                for mode, pl in (("fused_blocks", player), ("fused_spin", spin)):
+                    for i in range(args.warmup // 2 + block):
+                        j = (rep * block + i) % n_clip
+                        parts = frame(pl, mode, locals_[j:j + 1])
+                        if i >= args.warmup // 2:
+                            record(mode, parts)
+        spin.close()
+    player.graph = "fused"
     med = {m: {k: _median_ms(v) for k, v in s.items()} for m, s in steps.items()}
-    best_mode = min(med, key=lambda m: med[m]["total"])
+    best_mode = min(("fused", "split"), key=lambda m: med[m]["total"])  # the player's default modes
     frame_s = med[best_mode]["total"] / 1e3
     fps = 1.0 / frame_s
 
@@ -117,7 +181,6 @@ def run(args: argparse.Namespace) -> int:
     faces = player.character.faces
     rt: list[float] = []
     rt_model: list[float] = []
-    player.graph = best_mode
     with console.status(f"ray-tracing {args.raytrace_frames} frames with Embree ({n_rays} rays/vertex) ..."):
         for j in range(args.raytrace_frames):
             loc = locals_[(j * 7) % n_clip:(j * 7) % n_clip + 1]
@@ -135,8 +198,10 @@ def run(args: argparse.Namespace) -> int:
     speedup_paired = raytrace_s / float(np.median(rt_model))  # vs the model on the same few frames, cold
 
     # -- (b) bandwidth bound --------------------------------------------------------------------
-    with console.status("measuring copy bandwidth ..."):
+    with console.status("measuring copy bandwidth and GEMM throughput ..."):
         bw = copy_bandwidth()
+        gemm_flops = gemm_rate(player.bundle.n_vertices, player.order ** 2, int(player.rpo.M.shape[0]),
+                               args.threads)
     files = meta["files"]
     if best_mode == "fused":
         model_bytes = initializer_bytes(run_dir / files["fused"])
@@ -145,6 +210,8 @@ def run(args: argparse.Namespace) -> int:
     model_bytes += player.rpo.M.nbytes + player.rpo.w.nbytes + player.lighting.coeffs.nbytes
     stream_s = model_bytes / bw
     bandwidth_fraction = stream_s / frame_s
+    floor = frame_floor(player.bundle.n_vertices, player.order, int(player.rpo.M.shape[0]),
+                        player.lighting.dirs.shape[0], stream_s, gemm_flops)
 
     # -- batched: B characters per call ----------------------------------------------------------
     b = args.batch
@@ -173,6 +240,7 @@ def run(args: argparse.Namespace) -> int:
         "copy_bandwidth_gb_s": bw / 1e9, "model_bytes": int(model_bytes), "stream_ms": stream_s * 1e3,
         "bandwidth_fraction": bandwidth_fraction,
         "batch": b, "batched_call_ms": batch_s * 1e3, "batched_character_fps": b / batch_s,
+        "gemm_gflop_s": gemm_flops / 1e9, "floor": floor,
     }
     if args.json:
         print(json.dumps(out, indent=2, sort_keys=True))
@@ -181,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
                     f"{out['model_kind']}, {out['brdf']} k={out['brdf_terms']}, {args.threads} ORT threads)")
     t.add_column("measure")
     t.add_column("value", justify="right")
-    for m in ("fused", "split"):
+    for m in med:
         parts = ", ".join(f"{k} {v:.3f}" for k, v in med[m].items() if k != "total")
         t.add_row(f"{m} graph: ms/frame ({parts})", f"{med[m]['total']:.3f} ms = {1e3 / med[m]['total']:.0f} fps")
     t.add_row(f"Embree ray trace ({n_rays} rays/vertex) + shading, per frame", f"{raytrace_s * 1e3:.0f} ms")
@@ -190,6 +258,8 @@ def run(args: argparse.Namespace) -> int:
     t.add_row(f"model bytes {model_bytes / 1e6:.2f} MB at copy bandwidth {bw / 1e9:.1f} GB/s",
               f"{stream_s * 1e3:.3f} ms")
     t.add_row("bandwidth fraction (stream time / frame time)", f"{bandwidth_fraction:.3f}")
+    t.add_row(f"GEMM ({floor['shading_gflop']:.3f} GFLOP shading) at {gemm_flops / 1e9:.0f} GFLOP/s + stream "
+              f"(floor, posing excluded)", f"{floor['floor_ms']:.3f} ms = {1e3 / floor['floor_ms']:.0f} fps")
     t.add_row(f"batched B={b}: per call", f"{batch_s * 1e3:.1f} ms = {b / batch_s:.0f} character-frames/s")
     Console().print(t)  # the result table on stdout (progress went to stderr)
     return 0

@@ -66,7 +66,7 @@ class RunBundle:
     """
 
     def __init__(self, run_dir: str | os.PathLike[str], threads: int = 2,
-                 graphs: tuple[str, ...] = ("visibility", "shading", "fused")) -> None:
+                 graphs: tuple[str, ...] = ("visibility", "shading", "fused"), spinning: bool = False) -> None:
         from prt_torch.rig.character import Character
 
         self.run_dir = Path(run_dir)
@@ -98,7 +98,7 @@ class RunBundle:
         check(self.cluster.shape == (self.n_vertices,), f"{fpath}: cluster labels must be ({self.n_vertices},)")
         self.graphs: dict[str, OrtGraph] = {}
         for name in graphs:
-            g = OrtGraph(self.run_dir / self.meta["files"][name], threads=threads)
+            g = OrtGraph(self.run_dir / self.meta["files"][name], threads=threads, spinning=spinning)
             md = g.metadata
             for key, want in (("prt.character_hash", self.meta["character_hash"]),
                               ("prt.sh_order", str(self.order)), ("prt.n_vertices", str(self.n_vertices))):
