@@ -82,6 +82,19 @@ def test_sh_polynomial_matches_basis(order: int) -> None:
     np.testing.assert_allclose(y, sh_basis(d, order), atol=2e-6)
 
 
+@pytest.mark.parametrize("order", [1, 2, 3, 4, 6])
+def test_sh_polynomial_monomials_are_the_listed_powers(order: int) -> None:
+    """The degree-by-degree gathered monomials equal x^a y^b z^c computed directly, for every listed
+    exponent, each exponent of degree < order exactly once (non-unit points: no x^2+y^2+z^2=1 shortcut)."""
+    d = np.random.default_rng(order).uniform(-1.5, 1.5, size=(40, 3))
+    m = SHPolynomial(order)
+    exps = np.array(m.exps)
+    assert len({tuple(e) for e in m.exps}) == len(m.exps) == order * (order + 1) * (order + 2) // 6
+    assert exps.sum(axis=1).max() == order - 1
+    got = m.monomials(torch.from_numpy(d.T.copy())).numpy().T
+    np.testing.assert_allclose(got, np.prod(d[:, None, :] ** exps[None], axis=-1), rtol=1e-12, atol=1e-12)
+
+
 @pytest.mark.parametrize("order,k", [(4, 8), (3, 2)])
 def test_shading_graph_matches_quadrature_reference(order: int, k: int) -> None:
     rng = np.random.default_rng(7)
