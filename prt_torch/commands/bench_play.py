@@ -4,8 +4,9 @@ Measured in one run on the exported run (default ``runs/demo``: built-in charact
 order 4, MLP model) with an 8-term RPO (``phong``):
 
 * per-frame path (numpy FK + LBS + frames + pose features -> ORT -> radiance), fused graph, split
-  graphs (visibility then shading), interleaved frame by frame; median over ``--frames``; the faster
-  one is ``fps``; then the fused graph with spinning ORT threads (``fused_spin``, a second player) in
+  graphs (visibility then shading) and the fused graph on a player with 1 onnxruntime thread
+  (``fused_1thread``), interleaved frame by frame; median over ``--frames``; the fastest is ``fps``;
+  then the fused graph with spinning ORT threads (``fused_spin``, a second player) in
   alternating blocks against the non-spinning one (``fused_blocks``);
 * (a) ray tracing the same frames' visibility with Embree (``prt_torch.bake.frame.bake_frame``, the
   bake's per-frame path, ``--rays`` 512 by default as in the bake config) and shading it: ``speedup_vs_raytrace``;
@@ -64,8 +65,9 @@ def copy_bandwidth(n_bytes: int = 1 << 28, repeats: int = 5) -> float:
 
 
 def gemm_rate(n_vertices: int, n_coeffs: int, n_terms: int, threads: int, repeats: int = 25) -> float:
-    """Best-of-``repeats`` FLOP/s of numpy's float32 GEMM of the shading's RPO step
-    ``(C, k*C) @ (k*C, V)`` with ``threads`` BLAS threads (the compute-rate ceiling of that step)."""
+    """Best FLOP/s of numpy's float32 GEMM of the shading's RPO step ``(C, k*C) @ (k*C, V)`` over
+    ``repeats`` calls with 1 and with ``threads`` BLAS threads (2 threads lose badly whenever the other
+    core is busy, so the better of the two is the machine's usable compute rate for that step)."""
     from threadpoolctl import threadpool_limits
 
     rng = np.random.default_rng(0)
@@ -73,12 +75,14 @@ def gemm_rate(n_vertices: int, n_coeffs: int, n_terms: int, threads: int, repeat
     x = rng.standard_normal((n_terms * n_coeffs, n_vertices)).astype(np.float32)
     out = np.empty((n_coeffs, n_vertices), np.float32)
     best = float("inf")
-    with threadpool_limits(limits=max(1, threads), user_api="blas"):
-        np.matmul(a, x, out=out)
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            np.matmul(a, x, out=out)
-            best = min(best, time.perf_counter() - t0)
+    for n in sorted({1, max(1, threads)}):
+        with threadpool_limits(limits=n, user_api="blas"):
+            for _ in range(3):
+                np.matmul(a, x, out=out)
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                np.matmul(a, x, out=out)
+                best = min(best, time.perf_counter() - t0)
     return 2.0 * a.shape[0] * a.shape[1] * n_vertices / best
 
 
@@ -140,13 +144,21 @@ def run(args: argparse.Namespace) -> int:
             steps[mode][k].append(v)
         steps[mode]["total"].append(sum(parts.values()))
 
+    # the same fused graph with ONE onnxruntime thread (no thread wake-ups per node; on a busy 2-core
+    # machine the second core is often not free anyway)
+    modes: dict[str, Player] = {"fused": player, "split": player}
+    if args.threads != 1:
+        modes["fused_1thread"] = Player(run_dir, brdf=args.brdf, graph="fused", threads=1)
+        steps["fused_1thread"] = {"pose": [], "fused": [], "total": []}
     with console.status(f"timing {args.frames} frames per mode on '{clip}' ..."):
         for i in range(args.warmup + args.frames):
             loc = locals_[i % n_clip:i % n_clip + 1]
-            for mode in ("fused", "split"):
-                parts = frame(player, mode, loc)
+            for mode, pl in modes.items():
+                parts = frame(pl, mode, loc)
                 if i >= args.warmup:
                     record(mode, parts)
+    if "fused_1thread" in modes:
+        modes["fused_1thread"].close()
     # spinning ORT threads busy-wait between calls and would slow any mode interleaved with them: timed in
     # alternating blocks of frames against the (non-spinning) fused player instead
     if not args.no_spinning:
@@ -165,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         spin.close()
     player.graph = "fused"
     med = {m: {k: _median_ms(v) for k, v in s.items()} for m, s in steps.items()}
-    best_mode = min(("fused", "split"), key=lambda m: med[m]["total"])  # the player's default modes
+    best_mode = min([m for m in modes], key=lambda m: med[m]["total"])  # interleaved modes (not the blocks)
     frame_s = med[best_mode]["total"] / 1e3
     fps = 1.0 / frame_s
 
@@ -203,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
         gemm_flops = gemm_rate(player.bundle.n_vertices, player.order ** 2, int(player.rpo.M.shape[0]),
                                args.threads)
     files = meta["files"]
-    if best_mode == "fused":
+    if best_mode != "split":
         model_bytes = initializer_bytes(run_dir / files["fused"])
     else:
         model_bytes = initializer_bytes(run_dir / files["visibility"]) + initializer_bytes(run_dir / files["shading"])
