@@ -5,7 +5,8 @@ order 4, MLP model) with an 8-term RPO (``phong``):
 
 * per-frame path (numpy FK + LBS + frames + pose features -> ORT -> radiance), fused graph, split
   graphs (visibility then shading) and the fused graph on a player with 1 onnxruntime thread
-  (``fused_1thread``), interleaved frame by frame; median over ``--frames``; the fastest is ``fps``;
+  (``fused_1thread``) and the ``overlap`` player (visibility on a worker thread during the posing),
+  interleaved frame by frame; median over ``--frames``; the fastest is ``fps``;
   then the fused graph with spinning ORT threads (``fused_spin``, a second player) in
   alternating blocks against the non-spinning one (``fused_blocks``);
 * (a) ray tracing the same frames' visibility with Embree (``prt_torch.bake.frame.bake_frame``, the
@@ -110,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.errors import check
     from prt_torch.export.onnx_file import initializer_bytes
     from prt_torch.player import Player
+    from prt_torch.player.timing import FrameTimer
 
     console = Console(stderr=True)
     run_dir = Path(args.run)
@@ -127,6 +129,10 @@ def run(args: argparse.Namespace) -> int:
                                                 "split": {"pose": [], "visibility": [], "shading": [], "total": []}}
 
     def frame(pl: Player, mode: str, loc: np.ndarray) -> dict[str, float]:
+        if mode == "overlap":
+            timer = FrameTimer()
+            pl.compute_overlapped(loc, timer)
+            return {k: v[0] for k, v in timer.steps.items()}
         pl.graph = "split" if mode == "split" else "fused"
         t0 = time.perf_counter()
         state = pl.pose(loc)
@@ -150,6 +156,9 @@ def run(args: argparse.Namespace) -> int:
     if args.threads != 1:
         modes["fused_1thread"] = Player(run_dir, brdf=args.brdf, graph="fused", threads=1)
         steps["fused_1thread"] = {"pose": [], "fused": [], "total": []}
+    # visibility on a worker thread during the numpy posing (pays off only when the second core is free)
+    modes["overlap"] = Player(run_dir, brdf=args.brdf, graph="overlap", threads=args.threads)
+    steps["overlap"] = {"pose": [], "visibility": [], "shading": [], "total": []}
     with console.status(f"timing {args.frames} frames per mode on '{clip}' ..."):
         for i in range(args.warmup + args.frames):
             loc = locals_[i % n_clip:i % n_clip + 1]
@@ -157,8 +166,9 @@ def run(args: argparse.Namespace) -> int:
                 parts = frame(pl, mode, loc)
                 if i >= args.warmup:
                     record(mode, parts)
-    if "fused_1thread" in modes:
-        modes["fused_1thread"].close()
+    for pl in modes.values():
+        if pl is not player:
+            pl.close()
     # spinning ORT threads busy-wait between calls and would slow any mode interleaved with them: timed in
     # alternating blocks of frames against the (non-spinning) fused player instead
     if not args.no_spinning:
@@ -177,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
         spin.close()
     player.graph = "fused"
     med = {m: {k: _median_ms(v) for k, v in s.items()} for m, s in steps.items()}
-    best_mode = min([m for m in modes], key=lambda m: med[m]["total"])  # interleaved modes (not the blocks)
+    best_mode = min(modes, key=lambda m: med[m]["total"])  # interleaved modes (not the blocks)
     frame_s = med[best_mode]["total"] / 1e3
     fps = 1.0 / frame_s
 
@@ -215,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
         gemm_flops = gemm_rate(player.bundle.n_vertices, player.order ** 2, int(player.rpo.M.shape[0]),
                                args.threads)
     files = meta["files"]
-    if best_mode != "split":
+    if best_mode not in ("split", "overlap"):
         model_bytes = initializer_bytes(run_dir / files["fused"])
     else:
         model_bytes = initializer_bytes(run_dir / files["visibility"]) + initializer_bytes(run_dir / files["shading"])

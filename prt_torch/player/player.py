@@ -8,6 +8,8 @@ Per frame (``Player.compute``)::
         --cluster axes--> frames (B, 9, V);  pose features (B, A)   (prt_torch.player.posing, vertex-last)
     [fused]  ORT fused.onnx(pose, frames, view dirs, lobes, RPO) -> radiance (B, V, 3)
     [split]  ORT visibility.onnx(pose) -> (B, V, C);  ORT shading.onnx(...) -> radiance
+    [overlap] split, with visibility.onnx running on a worker thread while numpy poses (compute_overlapped)
+    B > 1: one batched visibility call, then shading per character
     radiance --tone map (exposure, Reinhard white), gamma--> uint8 colours
 
 Embedding::
@@ -31,10 +33,11 @@ from prt_torch.errors import PrtError, check
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
 from prt_torch.player.posing import PoseBatch, Poser
+from prt_torch.player.session import OrtGraph
 from prt_torch.player.timing import FrameTimer
 from prt_torch.player.tonemap import ToneMap, auto_tonemap
 
-GRAPH_MODES = ("fused", "split")
+GRAPH_MODES = ("fused", "split", "overlap")
 
 
 @dataclass
@@ -57,7 +60,9 @@ class Player:
         run_dir: exported run directory.
         env: HDR environment map path, or ``None`` for the procedural sun + sky.
         brdf: BRDF name of the run's RPO catalogue (or an RPO ``.npz``); ``None``: the first one.
-        graph: ``"fused"`` (one ORT call per frame) or ``"split"`` (visibility then shading).
+        graph: ``"fused"`` (one ORT call per frame), ``"split"`` (visibility then shading) or ``"overlap"``
+            (split, with the visibility call running on a worker thread during the numpy posing:
+            :meth:`compute_overlapped`).
         threads: onnxruntime intra-op threads.
         window_size: render size in pixels.
         exposure: a fixed :class:`~prt_torch.player.tonemap.ToneMap`; ``None`` picks one from the first frame.
@@ -99,6 +104,8 @@ class Player:
         self.camera_azimuth = 0.0
         self.camera_elevation = 0.2
         self._renderer: Any = None
+        self._pool: Any = None  # worker thread of the "overlap" mode (created on first use)
+        self._vis_overlap: OrtGraph | None = None
 
     # -- settings ------------------------------------------------------------------------------
     @property
@@ -188,6 +195,15 @@ class Player:
         t0 = time.perf_counter()
         vis = self.visibility(state.features, checked)  # (B, V, C)
         t1 = time.perf_counter()
+        out = self._shade_each(state, vis, feeds, checked)
+        if timer is not None:
+            timer.add("visibility", t1 - t0)
+            timer.add("shading", time.perf_counter() - t1)
+        return out
+
+    def _shade_each(self, state: PoseBatch, vis: np.ndarray, feeds: dict[str, np.ndarray],
+                    checked: bool) -> np.ndarray:
+        """Radiance ``(B, V, 3)`` from visibility ``(B, V, C)``, one shading call per character."""
         g = self.bundle.graphs["shading"]
         n_b = vis.shape[0]
         out = np.empty((n_b, self.bundle.n_vertices, 3), np.float32)
@@ -196,18 +212,45 @@ class Player:
             feeds["frames"] = state.frames[i:i + 1]
             feeds["view_dirs"] = state.view_dirs[i:i + 1]
             out[i] = (g.run(feeds)["radiance"] if checked else g.run_unchecked(feeds)[0])[0]
-        if timer is not None:
-            timer.add("visibility", t1 - t0)
-            timer.add("shading", time.perf_counter() - t1)
         return out
 
     def compute(self, local: np.ndarray, timer: FrameTimer | None = None) -> tuple[PoseBatch, np.ndarray]:
         """The whole per-frame compute path for ``(B, J, 4, 4)`` locals -> (posed batch, radiance (B, V, 3))."""
+        if self.graph == "overlap":
+            return self.compute_overlapped(local, timer)
         t0 = time.perf_counter()
         state = self.pose(local)
         if timer is not None:
             timer.add("pose", time.perf_counter() - t0)
         return state, self.shade(state, checked=False, timer=timer)
+
+    def compute_overlapped(self, local: np.ndarray,
+                           timer: FrameTimer | None = None) -> tuple[PoseBatch, np.ndarray]:
+        """:meth:`compute` with the visibility model running WHILE numpy poses the mesh (graph ``"overlap"``).
+
+        The model needs only the pose features (``Poser.features``, ~40 us), so its onnxruntime call (which
+        releases the GIL) runs on a worker thread - with ONE intra-op thread, its own session - while the
+        main thread does FK, LBS, frames and view directions on the other core; then the split shading
+        graph. Same numbers as the split path.
+        """
+        t0 = time.perf_counter()
+        feats = self.poser.features(local)
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prt-visibility")
+            self._vis_overlap = OrtGraph(self.bundle.graphs["visibility"].path, threads=1)
+        fut = self._pool.submit(self._vis_overlap.run_unchecked, {"pose": feats})
+        state = self.poser(local, self.eye, features=feats)
+        t1 = time.perf_counter()
+        vis = fut.result()[0]
+        t2 = time.perf_counter()
+        out = self._shade_each(state, vis, self._shading_feeds(state), checked=False)
+        if timer is not None:
+            timer.add("pose", t1 - t0)
+            timer.add("visibility", t2 - t1)  # the part of the model call not hidden behind the posing
+            timer.add("shading", time.perf_counter() - t2)
+        return state, out
 
     def colors(self, radiance: np.ndarray) -> np.ndarray:
         """uint8 colours; fixes the tone map (exposure, white) from the first call when it was not given."""
@@ -320,6 +363,9 @@ class Player:
         pl.add_key_event("Down", lambda: self.orbit(0, -np.radians(8)))
 
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

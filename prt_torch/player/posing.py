@@ -73,17 +73,34 @@ class Poser:
         self._axes2 = np.stack([self.axes, self.fallback])  # (2, Kc, 3) float64
         self._buffers: tuple[np.ndarray, np.ndarray] | None = None
 
-    def __call__(self, local: np.ndarray, eye: np.ndarray) -> PoseBatch:
-        """Pose ``local (B, J, 4, 4)`` joint transforms; ``eye (3,)`` camera position for the view directions."""
-        from prt_torch.rig.features import pose_features
-        from prt_torch.rig.skeleton import forward_kinematics
-
+    def _checked_local(self, local: np.ndarray) -> np.ndarray:
         ch = self.character
         local = np.asarray(local, dtype=np.float64)
         if local.ndim != 4 or local.shape[1:] != (ch.num_joints, 4, 4) or local.shape[0] < 1:
             raise PrtError(f"local joint transforms must be (B, {ch.num_joints}, 4, 4) with B >= 1, got {local.shape}")
         if not np.isfinite(local).all():
             raise PrtError("local joint transforms contain NaN or Inf")
+        return local
+
+    def features(self, local: np.ndarray) -> np.ndarray:
+        """``(B, A)`` float32 pose features of ``local (B, J, 4, 4)`` alone (checked; no FK/LBS): what the
+        visibility model needs, so that it can start before the rest of the posing path."""
+        from prt_torch.rig.features import pose_features
+
+        ch = self.character
+        local = self._checked_local(local)
+        return np.ascontiguousarray(pose_features(local, ch.bind_local, ch.parents), dtype=np.float32)
+
+    def __call__(self, local: np.ndarray, eye: np.ndarray, features: np.ndarray | None = None) -> PoseBatch:
+        """Pose ``local (B, J, 4, 4)`` joint transforms; ``eye (3,)`` camera position for the view directions.
+
+        ``features``: the ``(B, A)`` result of :meth:`features` for the same ``local`` when already computed.
+        """
+        from prt_torch.rig.features import pose_features
+        from prt_torch.rig.skeleton import forward_kinematics
+
+        ch = self.character
+        local = self._checked_local(local)
         b = local.shape[0]
         skin = forward_kinematics(ch.parents, local) @ ch.inverse_bind[None]  # (B, J, 4, 4) float64
         rows = skin[:, :, :3, :].reshape(b, -1, 12).transpose(0, 2, 1).astype(np.float32)  # (B, 12, J)
@@ -140,8 +157,9 @@ class Poser:
         frames[:, 6:9] = nrm
         view = np.subtract(np.asarray(eye, dtype=np.float32).reshape(1, 3, 1), pos)
         _normalize(view, s1, s3)
-        feats = pose_features(local, ch.bind_local, ch.parents)
-        return PoseBatch(pos, nrm, frames, view, np.ascontiguousarray(feats, dtype=np.float32))
+        if features is None:
+            features = np.ascontiguousarray(pose_features(local, ch.bind_local, ch.parents), dtype=np.float32)
+        return PoseBatch(pos, nrm, frames, view, features)
 
     def _scratch(self, b: int) -> tuple[np.ndarray, np.ndarray]:
         """``(B, V)`` and ``(B, 3, V)`` float32 scratch buffers, allocated once per batch size."""

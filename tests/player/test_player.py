@@ -171,3 +171,32 @@ def test_prt_play_cli_and_missing_display(tiny_run: Path, tmp_path: Path, monkey
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     assert main(["play", str(tiny_run), "--clip", "wave"]) == 2  # no display, no --out: a clear error
+
+
+def test_overlap_mode_equals_fused_and_times_its_steps(tiny_run: Path) -> None:
+    """The overlapped path (visibility on a worker thread during the numpy posing) gives the fused graph's
+    radiance for single frames and a batch, and records pose / visibility / shading times."""
+    from prt_torch.player.timing import FrameTimer
+
+    fused = Player(tiny_run, brdf="phong")
+    over = Player(tiny_run, brdf="phong", graph="overlap")
+    try:
+        loc = fused.clip_locals("wave")[:3]
+        timer = FrameTimer()
+        for i in range(3):
+            st_f, ref = fused.compute(loc[i:i + 1])
+            st_o, got = over.compute(loc[i:i + 1], timer)
+            np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5 * np.abs(ref).max())
+            np.testing.assert_array_equal(st_o.features, st_f.features)
+            np.testing.assert_array_equal(st_o.frames, st_f.frames)
+        assert {k: len(v) for k, v in timer.steps.items()} == {"pose": 3, "visibility": 3, "shading": 3}
+        _, batch = over.compute(loc)
+        singles = np.concatenate([fused.compute(loc[i:i + 1])[1] for i in range(3)])
+        np.testing.assert_allclose(batch, singles, rtol=1e-5, atol=1e-5 * np.abs(singles).max())
+        with pytest.raises(PrtError, match="local joint transforms"):
+            over.compute(loc[:, :-1])
+    finally:
+        over.close()
+        fused.close()
+    with pytest.raises(PrtError, match="unknown graph mode"):
+        Player(tiny_run, graph="pipelined")
