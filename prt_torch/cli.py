@@ -31,20 +31,23 @@ COMMANDS: dict[str, str] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="prt", description="prt_torch: learned PRT for animated characters.")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+def add_command_modules(parser: argparse.ArgumentParser, modules: dict[str, str], dest: str, run_attr: str) -> None:
+    """Add one required sub-parser per command module (``HELP``, ``add_arguments``, ``run``).
+
+    The chosen module's ``run`` is stored on the namespace as ``run_attr``.
+    """
+    sub = parser.add_subparsers(dest=dest, metavar=dest.upper() if dest != "bench" else "NAME")
     sub.required = True
-    for name, modname in COMMANDS.items():
-        try:
-            mod = importlib.import_module(modname)
-        except ModuleNotFoundError as exc:  # a command whose module is not written yet
-            if exc.name != modname:
-                raise
-            continue
+    for name, modname in modules.items():
+        mod = importlib.import_module(modname)
         p = sub.add_parser(name, help=getattr(mod, "HELP", ""), description=getattr(mod, "HELP", ""))
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(**{run_attr: mod.run})
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="prt", description="prt_torch: learned PRT for animated characters.")
+    add_command_modules(parser, COMMANDS, "command", "_run")
     return parser
 
 

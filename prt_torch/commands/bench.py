@@ -7,7 +7,6 @@ command module (``HELP``, ``add_arguments``, ``run``).
 from __future__ import annotations
 
 import argparse
-import importlib
 
 HELP = "Benchmarks (bake, fit, play, shade): our path vs the raw limit or the naive way, in one run."
 
@@ -15,19 +14,9 @@ BENCHES = ("bake", "fit", "play", "shade")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="bench", metavar="NAME")
-    sub.required = True
-    for name in BENCHES:
-        modname = f"prt_torch.commands.bench_{name}"
-        try:
-            mod = importlib.import_module(modname)
-        except ModuleNotFoundError as exc:
-            if exc.name != modname:
-                raise
-            continue
-        p = sub.add_parser(name, help=getattr(mod, "HELP", ""), description=getattr(mod, "HELP", ""))
-        mod.add_arguments(p)
-        p.set_defaults(_bench_run=mod.run)
+    from prt_torch.cli import add_command_modules
+
+    add_command_modules(parser, {name: f"prt_torch.commands.bench_{name}" for name in BENCHES}, "bench", "_bench_run")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -63,6 +63,21 @@ def _is_torch(a: Any) -> bool:
     return type(a).__module__.startswith("torch")
 
 
+def check_float_array(a: Any, name: str, finite: bool = True) -> np.ndarray:
+    """Validate a floating-point numpy array or torch tensor (finite unless ``finite=False``).
+
+    Returns a numpy view (a CPU copy for torch input) for further checks; raises :class:`PrtError`.
+    """
+    if not (isinstance(a, np.ndarray) or _is_torch(a)):
+        raise PrtError(f"{name} must be a numpy array or torch tensor, got {type(a).__name__}")
+    arr = a.detach().cpu().numpy() if _is_torch(a) else a
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise PrtError(f"{name} must be floating point, got {a.dtype}")
+    if finite and not np.isfinite(arr).all():
+        raise PrtError(f"{name} contain NaN or Inf")
+    return arr
+
+
 def order_from_coeffs(num: int) -> int:
     """Inverse of :func:`num_coeffs`; raises :class:`PrtError` if ``num`` is not a square."""
     n = int(round(math.sqrt(num)))
@@ -82,13 +97,9 @@ def check_directions(dirs: Any, name: str = "directions", atol: float | None = N
 
     The unit-length tolerance is 1e-3 for 32-bit (and narrower) floats, 1e-8 for float64.
     """
-    if not (isinstance(dirs, np.ndarray) or _is_torch(dirs)):
-        raise PrtError(f"{name} must be a numpy array or torch tensor, got {type(dirs).__name__}")
+    a = check_float_array(dirs, name, finite=False)
     if dirs.ndim < 1 or dirs.shape[-1] != 3:
         raise PrtError(f"{name} must have shape (..., 3), got {tuple(dirs.shape)}")
-    a = dirs.detach().cpu().numpy() if _is_torch(dirs) else dirs
-    if not np.issubdtype(a.dtype, np.floating):
-        raise PrtError(f"{name} must be floating point, got {dirs.dtype}")
     if a.size == 0:
         return
     if not np.isfinite(a).all():

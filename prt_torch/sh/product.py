@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from prt_torch.errors import PrtError
-from prt_torch.sh.basis import _is_torch, band_of, check_order, order_from_coeffs, sh_basis
+from prt_torch.sh.basis import _is_torch, band_of, check_float_array, check_order, order_from_coeffs, sh_basis
 from prt_torch.sh.quadrature import gauss_product_rule
 
 if TYPE_CHECKING:
@@ -143,13 +143,9 @@ def gaunt_tensor(order: int) -> GauntTensor:
 
 def _check_coeffs(a: Any, name: str) -> int:
     """Validate ``(..., C)`` finite float coefficients (numpy or torch); return the order."""
-    if not (isinstance(a, np.ndarray) or _is_torch(a)):
-        raise PrtError(f"{name} must be a numpy array or torch tensor, got {type(a).__name__}")
+    arr = check_float_array(a, name, finite=False)
     if a.ndim < 1:
         raise PrtError(f"{name} must have shape (..., C) with C = n*n, got {tuple(a.shape)}")
-    arr = a.detach().cpu().numpy() if _is_torch(a) else a
-    if not np.issubdtype(arr.dtype, np.floating):
-        raise PrtError(f"{name} must be floating point, got {a.dtype}")
     try:
         order = order_from_coeffs(int(a.shape[-1]))
     except PrtError:

@@ -10,27 +10,17 @@ numpy arrays and torch tensors are both accepted (torch imported lazily; differe
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
 from prt_torch.errors import PrtError
-from prt_torch.sh.basis import _is_torch, check_directions, check_order, order_from_coeffs, sh_basis
+from prt_torch.sh.basis import _is_torch, check_directions, check_float_array, check_order, order_from_coeffs, sh_basis
 
 if TYPE_CHECKING:
     import torch
 
 Array = TypeVar("Array", "np.ndarray", "torch.Tensor")
-
-
-def _check_values(a: Any, name: str) -> None:
-    if not (isinstance(a, np.ndarray) or _is_torch(a)):
-        raise PrtError(f"{name} must be a numpy array or torch tensor, got {type(a).__name__}")
-    arr = a.detach().cpu().numpy() if _is_torch(a) else a
-    if not np.issubdtype(arr.dtype, np.floating):
-        raise PrtError(f"{name} must be floating point, got {a.dtype}")
-    if not np.isfinite(arr).all():
-        raise PrtError(f"{name} contain NaN or Inf")
 
 
 def project(values: Array, dirs: Array, weights: Array, order: int, check: bool = True) -> Array:
@@ -49,8 +39,8 @@ def project(values: Array, dirs: Array, weights: Array, order: int, check: bool 
     """
     if check:
         check_order(order)
-        _check_values(values, "values")
-        _check_values(weights, "weights")
+        check_float_array(values, "values")
+        check_float_array(weights, "weights")
         check_directions(dirs, "projection directions")
         if dirs.ndim != 2:
             raise PrtError(f"projection directions must have shape (N, 3), got {tuple(dirs.shape)}")
@@ -82,7 +72,7 @@ def reconstruct(coeffs: Array, dirs: Array, check: bool = True) -> Array:
         ``(..., N)`` values. For coefficient-first data such as lighting ``(C, 3)`` use :func:`evaluate`.
     """
     if check:
-        _check_values(coeffs, "SH coefficients")
+        check_float_array(coeffs, "SH coefficients")
         if coeffs.ndim < 1:
             raise PrtError(f"SH coefficients must have shape (..., C), got {tuple(coeffs.shape)}")
         check_directions(dirs, "reconstruction directions")
@@ -100,7 +90,7 @@ def reconstruct(coeffs: Array, dirs: Array, check: bool = True) -> Array:
 def evaluate(coeffs: Array, dirs: Array, check: bool = True) -> Array:
     """Inverse of :func:`project` in layout: ``coeffs (C, ...)`` -> values ``(N, ...)`` at ``dirs (N, 3)``."""
     if check:
-        _check_values(coeffs, "SH coefficients")
+        check_float_array(coeffs, "SH coefficients")
         if coeffs.ndim < 1:
             raise PrtError(f"SH coefficients must have shape (C, ...), got {tuple(coeffs.shape)}")
     c = coeffs.shape[0]

@@ -29,7 +29,15 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from prt_torch.errors import PrtError
-from prt_torch.sh.basis import _is_torch, band_of, check_directions, check_order, order_from_coeffs, sh_basis
+from prt_torch.sh.basis import (
+    _is_torch,
+    band_of,
+    check_directions,
+    check_float_array,
+    check_order,
+    order_from_coeffs,
+    sh_basis,
+)
 
 if TYPE_CHECKING:
     import torch
@@ -46,17 +54,6 @@ def _as_backend(table: np.ndarray, like: Any) -> Any:
     return table.astype(like.dtype if np.issubdtype(like.dtype, np.floating) else np.float64, copy=False)
 
 
-def _check_array(a: Any, name: str) -> np.ndarray:
-    if not (isinstance(a, np.ndarray) or _is_torch(a)):
-        raise PrtError(f"{name} must be a numpy array or torch tensor, got {type(a).__name__}")
-    arr = a.detach().cpu().numpy() if _is_torch(a) else a
-    if not np.issubdtype(arr.dtype, np.floating):
-        raise PrtError(f"{name} must be floating point, got {a.dtype}")
-    if not np.isfinite(arr).all():
-        raise PrtError(f"{name} contain NaN or Inf")
-    return arr
-
-
 def zh_band_scale(order: int) -> np.ndarray:
     """``sqrt(4 pi / (2l+1))`` for ``l < order``, shape ``(n,)`` float64: ``g_l = scale_l * z_l``."""
     check_order(order)
@@ -66,7 +63,7 @@ def zh_band_scale(order: int) -> np.ndarray:
 
 def zh_from_axial(z: Array) -> Array:
     """Axis-aligned ZH coefficients ``z (..., n)`` (``y_l0`` coefficients about ``+z``) -> ``g (..., n)``."""
-    _check_array(z, "axial ZH coefficients")
+    check_float_array(z, "axial ZH coefficients")
     if z.ndim < 1:
         raise PrtError(f"axial ZH coefficients must have shape (..., n), got {tuple(z.shape)}")
     order = int(z.shape[-1])
@@ -76,7 +73,7 @@ def zh_from_axial(z: Array) -> Array:
 
 def zh_to_axial(g: Array) -> Array:
     """Inverse of :func:`zh_from_axial`: ``g (..., n)`` -> axis-aligned ``z (..., n)``."""
-    _check_array(g, "ZH coefficients")
+    check_float_array(g, "ZH coefficients")
     if g.ndim < 1:
         raise PrtError(f"ZH coefficients must have shape (..., n), got {tuple(g.shape)}")
     order = int(g.shape[-1])
@@ -98,7 +95,7 @@ def zh_to_sh(g: Array, axis: Array, check: bool = True) -> Array:
         ``(..., n*n)`` SH coefficients, in the backend of the inputs (both numpy or both torch).
     """
     if check:
-        _check_array(g, "ZH coefficients")
+        check_float_array(g, "ZH coefficients")
         if g.ndim < 1:
             raise PrtError(f"ZH coefficients must have shape (..., n), got {tuple(g.shape)}")
         check_order(int(g.shape[-1]))
@@ -234,7 +231,7 @@ def irradiance_sh(light: Array) -> Array:
         ``(C, ...)`` SH coefficients of the (cosine-weighted, not divided by pi) irradiance; a uniform
         unit environment gives ``E = pi`` everywhere.
     """
-    _check_array(light, "SH lighting")
+    check_float_array(light, "SH lighting")
     if light.ndim < 1:
         raise PrtError(f"SH lighting must have shape (C, ...), got {tuple(light.shape)}")
     try:
