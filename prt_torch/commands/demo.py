@@ -193,8 +193,22 @@ def compare_heldout(player: Any, dataset: Path, clip: str, console: Any = None) 
         img = player.render_frame(state, rad[name], index=i)
         panels.append(_label(img, {"truth": "ray-traced truth", "model": f"model ({player.bundle.meta['model_kind']})",
                                    "unshadowed": "unshadowed"}[name]))
+    # second row: the fraction of light blocked at each vertex, 1 - lit / unshadowed (white = fully shadowed),
+    # for the truth and the model, and their absolute difference, so self-shadowing is plain to see
+    from prt_torch.player.tonemap import ToneMap
+
+    unlit = rad["unshadowed"][i].sum(-1)
+    blocked = {name: np.clip(1.0 - rad[name][i].sum(-1) / np.maximum(unlit, 1e-12), 0.0, 1.0)
+               for name in ("truth", "model")}
+    blocked["error"] = np.abs(blocked["model"] - blocked["truth"])
+    player.exposure = ToneMap(1.0, None)  # type: ignore[arg-type]  # plain clip to [0, 1], then gamma
+    row2 = []
+    for name, label in (("truth", "light blocked: truth"), ("model", "light blocked: model"),
+                        ("error", "|model - truth|")):
+        grey = np.repeat(blocked[name][None, :, None], 3, axis=-1).astype(np.float32)
+        row2.append(_label(player.render_frame(state, np.broadcast_to(grey, (n,) + grey.shape[1:]), index=i), label))
     out = player.bundle.run_dir / "comparison.png"
-    write_png(out, np.concatenate(panels, axis=1))
+    write_png(out, np.concatenate([np.concatenate(panels, axis=1), np.concatenate(row2, axis=1)], axis=0))
     player.exposure = None  # the video picks its own
     shadowed = (rad["truth"].sum(-1) < 0.8 * rad["unshadowed"].sum(-1))  # where the truth says "in shadow"
     darker = rad["model"].sum(-1) < rad["unshadowed"].sum(-1)

@@ -16,7 +16,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--png", default=None, help="write PNG frames into this directory (offscreen)")
     parser.add_argument("--frames", type=int, default=None, help="play at most this many frames")
     parser.add_argument("--fps", type=float, default=None, help="resample the clip to this rate")
-    parser.add_argument("--graph", default="fused", choices=["fused", "split"])
+    parser.add_argument("--graph", default="fused", choices=["fused", "split", "overlap"],
+                        help="one fused ORT graph, visibility then shading, or visibility on a worker thread "
+                             "overlapping the numpy posing (best when a core is free)")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     parser.add_argument("--size", default="480x640", help="image size HxW (default 480x640)")
     parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
