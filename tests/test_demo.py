@@ -22,9 +22,14 @@ def test_demo_outputs(tiny_run: Path) -> None:
     video = tiny_run / "heldout.mp4"
     assert sum(1 for _ in iio.get_reader(video)) == 4
     png = iio.imread(tiny_run / "comparison.png")
-    assert png.shape == (240, 3 * 160, 3)
-    panels = np.split(png.astype(float), 3, axis=1)
+    assert png.shape == (2 * 240, 3 * 160, 3)
+    shaded, blocked = np.split(png.astype(float), 2, axis=0)
+    panels = np.split(shaded, 3, axis=1)
     assert all(p.std() > 5 for p in panels)  # three rendered characters
+    truth_blocked, model_blocked, error = np.split(blocked, 3, axis=1)
+    # the light-blocked maps show shadowing (bright pixels), and the model's error map is darker than the truth map
+    assert truth_blocked.mean() > 1.0 and model_blocked.mean() > 1.0
+    assert error.mean() < truth_blocked.mean()
     m = json.loads((tiny_run / "demo_metrics.json").read_text())
     h = m["heldout"]
     # the learned model is closer to the ray-traced truth than ignoring shadows
