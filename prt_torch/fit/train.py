@@ -3,8 +3,8 @@
 ``train(config)`` reads ``dataset.zarr`` (the ``train`` split, and ``heldout`` for the metrics
 when present) and writes into the run directory::
 
-    models/<kind>.pt     one VisibilityModel per kind (state dict + config)
-    model.pt             the default kind (mlp when trained)
+    models/<kind>.pt     one VisibilityModel per kind (packed state dict + config)
+    model.pt             the default kind (mlp when trained): a hard link, not a second copy
     model.json           metadata: conventions, order, V, A, kinds, dataset/character hash,
                          chosen alphas/neurons per cluster, CV scores, fit times
     metrics.json         visibility errors per kind on train and held-out frames
@@ -12,7 +12,6 @@ when present) and writes into the run directory::
 
 from __future__ import annotations
 
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +27,7 @@ from prt_torch.fit.data import DatasetInfo, SplitData, dataset_info, load_split
 from prt_torch.fit.folds import blocked_folds
 from prt_torch.fit.mlp import fit_mlp
 from prt_torch.fit.ridge import fit_ridge_per_group, ridge_cv, ridge_path
-from prt_torch.io import atomic_path, atomic_write_json
+from prt_torch.io import atomic_write_json
 from prt_torch.models import (
     GlobalUnprojection,
     InputProjection,
@@ -37,6 +36,7 @@ from prt_torch.models import (
     OutputUnprojection,
     QuadraticRegressor,
     VisibilityModel,
+    link_default,
     save_model,
 )
 from prt_torch.models.regressors import quadratic_features
@@ -277,8 +277,7 @@ def _train(dataset: str | Path, run_dir: Path, cfg: TrainConfig, info: DatasetIn
     for kind, r in fits.items():
         save_model(r.model, run_dir / "models" / f"{kind}.pt")
     default = cfg.default_kind if cfg.default_kind in fits else next(iter(fits))
-    with atomic_path(run_dir / "model.pt") as tmp:
-        shutil.copyfile(run_dir / "models" / f"{default}.pt", tmp)
+    link_default(run_dir, default)
     meta = _metadata(info, cfg, red, fits, default, train)
     metrics: dict[str, Any] = {"models": {}}
     splits = {"train": train}

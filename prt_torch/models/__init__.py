@@ -14,10 +14,12 @@ from prt_torch.models.regressors import (
 from prt_torch.models.visibility import (
     KINDS,
     VisibilityModel,
+    link_default,
     load_metadata,
     load_model,
     load_model_file,
     model_path,
+    packed_state,
     save_model,
 )
 
@@ -33,8 +35,10 @@ __all__ = [
     "VisibilityModel",
     "load_metadata",
     "load_model",
+    "link_default",
     "load_model_file",
     "model_path",
+    "packed_state",
     "quadratic_features",
     "save_model",
 ]

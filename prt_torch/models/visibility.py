@@ -6,9 +6,16 @@
 ONNX-exportable with a dynamic batch axis.
 
 Files (run directory ``runs/NAME``): ``models/<kind>.pt`` per kind, ``model.pt`` (the default
-kind), ``model.json`` (metadata). A ``.pt`` file is ``torch.save`` of a plain dict
-``{"format", "kind", "config", "state_dict"}`` (no pickled classes), written atomically and read
-with ``torch.load(weights_only=True)``; :func:`load_model` needs nothing but that file.
+kind: a hard link to ``models/<kind>.pt``, or a copy where links are unsupported), ``model.json``
+(metadata). A ``.pt`` file is ``torch.save`` of a plain dict ``{"format", "kind", "config",
+"state_dict"}`` (no pickled classes), written atomically and read with
+``torch.load(weights_only=True)``; :func:`load_model` needs nothing but that file.
+
+Stored state is packed (:func:`packed_state`): the per-cluster output basis, padded in memory to
+``(G, Kmax, Lmax)`` for one batched matmul, is saved as only its real blocks
+(``out.basis_packed``, cluster by cluster, each ``(K_g, V_g * C)`` row-major) with
+``out.basis_dims (G,)`` = ``K_g`` and ``out.basis_lens (G,)`` = ``V_g * C`` (int32), and
+re-padded on load. Files of format ``/1`` (padded) still load.
 """
 
 from __future__ import annotations
@@ -25,7 +32,8 @@ from prt_torch.io import atomic_path
 from prt_torch.models.projection import GlobalUnprojection, InputProjection, OutputUnprojection
 from prt_torch.models.regressors import REGRESSORS
 
-FORMAT = "prt_torch.visibility_model/1"
+FORMAT = "prt_torch.visibility_model/2"
+READABLE_FORMATS = ("prt_torch.visibility_model/1", FORMAT)
 KINDS = ("linear", "quadratic", "mlp")
 
 
@@ -107,9 +115,49 @@ class VisibilityModel(nn.Module):
         return cls(kind, inp, reg, out)
 
 
-def save_model(model: VisibilityModel, path: str | Path) -> None:
-    """Write ``model`` to ``path`` (``.pt``) atomically as state dict + config."""
+def _basis_extent(out: OutputUnprojection) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(G,)`` real component rows ``K_g`` and real columns ``V_g * C`` of a padded cluster basis."""
+    g, _, lmax = out.basis.shape
+    dims = (out.basis.abs().sum(-1) > 0).sum(-1)  # rows are zero only as padding (scaled PCA components)
+    lens = torch.bincount(out.gather.long() // lmax, minlength=g)
+    return dims.to(torch.int32), lens.to(torch.int32)
+
+
+def packed_state(model: VisibilityModel) -> dict[str, torch.Tensor]:
+    """The state dict as stored: the per-cluster basis without its zero padding (see module doc)."""
     state = {k: t.detach().to("cpu").contiguous() for k, t in model.state_dict().items()}
+    if isinstance(model.out, OutputUnprojection):
+        basis = state.pop("out.basis")  # (G, Kmax, Lmax)
+        dims, lens = _basis_extent(model.out)
+        blocks = [basis[g, : int(dims[g]), : int(lens[g])].reshape(-1) for g in range(basis.shape[0])]
+        state["out.basis_packed"] = torch.cat(blocks).contiguous()
+        state["out.basis_dims"] = dims
+        state["out.basis_lens"] = lens
+    return state
+
+
+def _unpack_state(state: dict[str, torch.Tensor], basis_shape: list[int], path: Path) -> dict[str, torch.Tensor]:
+    """Inverse of :func:`packed_state` (a padded ``/1`` state passes through)."""
+    if "out.basis_packed" not in state:
+        return state
+    state = dict(state)
+    flat = state.pop("out.basis_packed")
+    dims, lens = state.pop("out.basis_dims").long(), state.pop("out.basis_lens").long()
+    g, k, lmax = (int(s) for s in basis_shape)
+    check(dims.shape == (g,) and lens.shape == (g,) and int(dims.max()) <= k and int(lens.max()) <= lmax
+          and int((dims * lens).sum()) == flat.numel(), f"{path}: packed output basis does not match its shape")
+    basis = torch.zeros(g, k, lmax, dtype=flat.dtype)
+    offsets = torch.cumsum(dims * lens, 0) - dims * lens
+    for i in range(g):
+        n, m, o = int(dims[i]), int(lens[i]), int(offsets[i])
+        basis[i, :n, :m] = flat[o:o + n * m].reshape(n, m)
+    state["out.basis"] = basis
+    return state
+
+
+def save_model(model: VisibilityModel, path: str | Path) -> None:
+    """Write ``model`` to ``path`` (``.pt``) atomically as packed state dict + config."""
+    state = packed_state(model)
     payload = {"format": FORMAT, "kind": model.kind, "config": model.config(), "state_dict": state}
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
@@ -124,12 +172,33 @@ def load_model_file(path: str | Path) -> VisibilityModel:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling problem is a bad file
         raise PrtError(f"{path}: not a prt_torch model file ({type(exc).__name__})") from None
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+    if not isinstance(payload, dict) or payload.get("format") not in READABLE_FORMATS:
         raise PrtError(f"{path}: not a prt_torch model file (format {payload.get('format')!r})"
                        if isinstance(payload, dict) else f"{path}: not a prt_torch model file")
     model = VisibilityModel.from_config(payload["config"])
-    model.load_state_dict(payload["state_dict"])
+    state = payload["state_dict"]
+    if payload["config"].get("output", "cluster") == "cluster":
+        state = _unpack_state(state, payload["config"]["basis_shape"], path)
+    model.load_state_dict(state)
     return model.float().eval()
+
+
+def link_default(run_dir: str | Path, kind: str) -> Path:
+    """Make ``run_dir/model.pt`` the default model: a hard link to ``models/<kind>.pt`` (atomic
+    replace; a copy where the file system has no hard links). Returns its path."""
+    import os
+    import shutil
+
+    run_dir = Path(run_dir)
+    src, dst = model_path(run_dir, kind), run_dir / "model.pt"
+    check(src.is_file(), f"no trained {kind} model in {run_dir} ({src.name} missing)")
+    with atomic_path(dst) as tmp:
+        try:
+            tmp.unlink()
+            os.link(src, tmp)
+        except OSError:
+            shutil.copyfile(src, tmp)
+    return dst
 
 
 def model_path(run_dir: str | Path, kind: str | None = None) -> Path:

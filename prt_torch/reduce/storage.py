@@ -1,7 +1,8 @@
 """Storage accounting of visibility models, as in seed 000 Table 1.
 
-For each model: ``bytes`` = the real byte size of every array in its state dict (what
-``models/<kind>.pt`` stores, padding and the int32 gather index included), ``compact_bytes`` =
+For each model: ``bytes`` = the real byte size of every array ``models/<kind>.pt`` stores (the
+packed state of :func:`prt_torch.models.packed_state`: no basis padding; the int32 gather index
+and the small regressor padding included), ``compact_bytes`` =
 4 bytes per number a packed float32 store needs (real, unpadded parameters only), and each as a
 percentage of the training data (``ptd``: the ``(F_train, V, C)`` float32 visibility) and of a
 single mesh's PRT (``psm``: one ``(V, C)`` float32 frame). A row ``unreduced_linear`` gives the
@@ -18,8 +19,12 @@ from prt_torch.errors import check
 
 
 def state_bytes(model: torch.nn.Module) -> int:
-    """Sum of ``numel * element_size`` over the model's state dict."""
-    return int(sum(t.numel() * t.element_size() for t in model.state_dict().values()))
+    """Sum of ``numel * element_size`` over the stored (packed) state of a visibility model, or the
+    state dict of any other module."""
+    from prt_torch.models.visibility import VisibilityModel, packed_state
+
+    state = packed_state(model) if isinstance(model, VisibilityModel) else model.state_dict()
+    return int(sum(t.numel() * t.element_size() for t in state.values()))
 
 
 def compact_floats(model: Any) -> int:
