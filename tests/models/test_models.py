@@ -113,3 +113,30 @@ def test_global_output_variant_trains_loads_and_counts(synthetic_dataset: Path, 
     # packed: input PCA + per-vertex mean (V) + shared basis (k V) + weights/bias of C k outputs
     assert compact_floats(m) == a + a * d + v + k * v + (d + 1) * c * k
     assert state_bytes(m) == 4 * (a + a * d + v * c + k * v + (d + 1) * c * k)
+
+
+def test_files_store_no_padding_and_default_is_a_link(small_run: Path, tmp_path: Path) -> None:
+    """The saved basis holds exactly sum_g K_g V_g C numbers (counted from the cluster sizes of the
+    metadata, not from the saver), the file round-trips exactly, and model.pt is the same file."""
+    from prt_torch.fit.data import dataset_info
+    from prt_torch.models import save_model
+
+    meta = load_metadata(small_run)
+    labels = dataset_info(meta["dataset"]).cluster
+    sizes = np.bincount(labels - labels.min())
+    sizes = sizes[sizes > 0] * meta["n_coeffs"]
+    dims = np.asarray(meta["output_dims"])
+    for kind in KINDS:
+        path = small_run / "models" / f"{kind}.pt"
+        payload = torch.load(path, weights_only=True)
+        state = payload["state_dict"]
+        assert "out.basis" not in state and state["out.basis_packed"].numel() == int((dims * sizes).sum())
+        m = load_model(small_run, kind)
+        assert m.out.basis.shape == (len(dims), dims.max(), sizes.max())  # re-padded in memory
+        save_model(m, tmp_path / f"{kind}.pt")
+        again = load_model_file(tmp_path / f"{kind}.pt")
+        x = torch.randn(4, m.n_features)
+        assert torch.equal(m(x), again(x))
+    default = small_run / "model.pt"
+    mlp = small_run / "models" / "mlp.pt"
+    assert default.stat().st_ino == mlp.stat().st_ino or default.read_bytes() == mlp.read_bytes()
