@@ -24,6 +24,10 @@ class TrainConfig(BaseModel):
     input_variance: float = Field(default=0.90, gt=0, le=1)
     output_variance: float = Field(default=0.95, gt=0, le=1)
     output_pca: Literal["cluster", "global"] = "cluster"  # per-cluster (seed 003) or global (seed 000 sec. 5)
+    # per-cluster inputs of linear and mlp: "pca" = the shared input PCA (seed 003), "joints" = standardised 6D
+    # of the joints skinning the cluster + their parents (needs character.npz beside the dataset; prt_torch.fit.inputs)
+    input_selection: Literal["pca", "joints"] = "pca"
+    selection_weight: float = Field(default=0.01, ge=0, lt=1)  # skinning weight above which a joint counts
     whiten_inputs: bool = False  # measured: whitening hurts held-out error (noise dims get equal weight)
     folds: int = Field(default=4, ge=2)
     alphas: list[float] = Field(default_factory=lambda: [1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0])

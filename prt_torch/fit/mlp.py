@@ -45,7 +45,8 @@ def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_wei
             history_size: int = 20, chunk: int = 25,
             progress: Callable[[int, float], None] | None = None,
             init_linear: tuple[torch.Tensor, torch.Tensor] | None = None,
-            init_gain: float = 0.5, threads: int = 1) -> tuple[MLPParams, float, int]:
+            init_gain: float = 0.5, threads: int = 1,
+            input_mask: torch.Tensor | None = None) -> tuple[MLPParams, float, int]:
     """Fit the batch; returns masked parameters (float64), the final objective and iterations run.
 
     ``x (F, d)``, ``z (F, G, K)`` reduced targets, ``out_mask (G, K)`` real output dims,
@@ -57,6 +58,8 @@ def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_wei
     L-BFGS starts at (a rank-``N`` truncation of) the linear solution instead of a random point.
     Without it the hidden layer is random and the output layer is fitted by ridge.
 
+    ``input_mask (G, d)``: inputs each cluster may use (per-cluster input selection); the hidden
+    weights of the others are held at zero.
     ``threads``: torch intra-op threads while fitting (restored after; 0 leaves torch's setting).
     The L-BFGS two-loop recursion is many small vector ops whose thread synchronisation dominates
     on a busy machine: one thread measured 10x faster on 2 shared cores.
@@ -66,7 +69,7 @@ def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_wei
         torch.set_num_threads(threads)
     try:
         return _fit_mlp(x, z, out_mask, sample_weight, alpha, neuron_mask, max_iter, seed, history_size, chunk,
-                        progress, init_linear, init_gain)
+                        progress, init_linear, init_gain, input_mask)
     finally:
         torch.set_num_threads(before)
 
@@ -74,7 +77,7 @@ def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_wei
 def _fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_weight: torch.Tensor,
              alpha: torch.Tensor, neuron_mask: torch.Tensor, max_iter: int, seed: int, history_size: int, chunk: int,
              progress: Callable[[int, float], None] | None, init_linear: tuple[torch.Tensor, torch.Tensor] | None,
-             init_gain: float) -> tuple[MLPParams, float, int]:
+             init_gain: float, input_mask: torch.Tensor | None = None) -> tuple[MLPParams, float, int]:
     x = x.to(DT)
     z = z.to(DT)
     f, d = x.shape
@@ -83,11 +86,14 @@ def _fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_we
     check(z.shape[:2] == (f, g), f"mlp fit: targets {tuple(z.shape)} do not match inputs ({f}) / clusters ({g})")
     check(sample_weight.shape == (s, f) and alpha.shape == (s, g), "mlp fit: bad sample_weight/alpha shapes")
     nm = neuron_mask.to(DT)
+    im = torch.ones(g, d, dtype=DT) if input_mask is None else input_mask.to(DT)
+    check(im.shape == (g, d), f"mlp fit: input_mask must be ({g}, {d}), got {tuple(im.shape)}")
+    dm = nm.unsqueeze(-1) * im[None, :, None, :]  # (S, G, N, d) hidden-weight mask
     om = out_mask.to(DT)
     w = sample_weight.to(DT)
     a = alpha.to(DT)
     gen = torch.Generator().manual_seed(int(seed))
-    D = torch.randn(s, g, n, d, generator=gen, dtype=DT) / max(d, 1) ** 0.5 * nm.unsqueeze(-1)
+    D = torch.randn(s, g, n, d, generator=gen, dtype=DT) / max(d, 1) ** 0.5 * dm
     d0 = 0.5 * torch.randn(s, g, n, generator=gen, dtype=DT) * nm
     # output layer by weighted ridge on the random hidden activations (exact for that hidden layer)
     h = torch.tanh(torch.einsum("fd,sgnd->sgfn", x, D) + d0.unsqueeze(2)) * nm.unsqueeze(2)
@@ -109,11 +115,11 @@ def _fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_we
         d0 = torch.zeros_like(d0)
         C = torch.zeros_like(C)
         C[:, :, :, :r] = (vh[:, :, :r, :] * (sig[..., :r] / init_gain).unsqueeze(-1)).transpose(2, 3)
-        D, C = D * nm.unsqueeze(-1), C * nm.unsqueeze(2) * om[None, :, :, None]
+        D, C = D * dm, C * nm.unsqueeze(2) * om[None, :, :, None]
         c0 = b_lin * om
     params = [t.clone().requires_grad_(True) for t in (D, d0, C, c0)]
     zt = z.permute(1, 0, 2).unsqueeze(0)  # (1, G, F, K)
-    masks = (nm.unsqueeze(-1), nm, nm.unsqueeze(2) * om[None, :, :, None], om.expand(s, g, k))
+    masks = (dm, nm, nm.unsqueeze(2) * om[None, :, :, None], om.expand(s, g, k))
 
     def masked() -> MLPParams:
         return MLPParams(*(p * m for p, m in zip(params, masks, strict=True)))

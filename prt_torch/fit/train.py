@@ -25,6 +25,7 @@ from prt_torch.eval.metrics import vis_rel_err
 from prt_torch.fit.config import TrainConfig
 from prt_torch.fit.data import DatasetInfo, SplitData, dataset_info, load_split
 from prt_torch.fit.folds import blocked_folds
+from prt_torch.fit.inputs import JointInputs, joint_inputs, load_skinning
 from prt_torch.fit.mlp import fit_mlp
 from prt_torch.fit.ridge import fit_ridge_per_group, ridge_cv, ridge_path
 from prt_torch.io import atomic_write_json
@@ -53,6 +54,14 @@ class Reduced:
     z: np.ndarray  # (F, G, Kmax)
     mask: np.ndarray  # (G, Kmax)
     folds: np.ndarray  # (F,)
+    sel: JointInputs | None = None  # per-cluster joint inputs (linear and mlp) when input_selection = joints
+    xs: np.ndarray | None = None  # (F, d') the selected standardised inputs
+
+    def inputs(self, kind: str) -> tuple[np.ndarray, np.ndarray | None]:
+        """The training inputs of ``kind`` and its per-cluster input mask ``(G, d)`` (None: all)."""
+        if self.sel is not None and kind in SELECTED_KINDS:
+            return self.xs, self.sel.mask
+        return self.x, None
 
 
 @dataclass
@@ -70,21 +79,33 @@ def _log(progress: Any, msg: str) -> None:
         progress.console.log(msg) if hasattr(progress, "console") else print(msg)
 
 
-def reduce_training(train: SplitData, cluster: np.ndarray, cfg: TrainConfig) -> Reduced:
-    """Input PCA of the poses, per-cluster output PCA of the visibility, blocked folds."""
+SELECTED_KINDS = ("linear", "mlp")  # quadratic keeps the PCA inputs (its feature count is quadratic in d)
+
+
+def reduce_training(train: SplitData, cluster: np.ndarray, cfg: TrainConfig,
+                    skinning: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> Reduced:
+    """Input PCA of the poses, per-cluster output PCA of the visibility, blocked folds; with
+    ``skinning = (parents, joints, weights)`` also the per-cluster joint inputs."""
     inp = PCA.fit(train.pose, variance=cfg.input_variance, whiten=cfg.whiten_inputs, name="pose features")
     if cfg.output_pca == "global":
         out: ClusterPCA | GlobalOutputPCA = GlobalOutputPCA.fit(train.visibility, variance=cfg.output_variance)
     else:
         out = ClusterPCA.fit(train.visibility, cluster, variance=cfg.output_variance)
     folds = blocked_folds(train.clip_id, train.frame_index, cfg.folds)
+    sel = xs = None
+    if skinning is not None:
+        labels = np.unique(cluster, return_inverse=True)[1] if cfg.output_pca == "cluster" else np.zeros_like(cluster)
+        sel = joint_inputs(train.pose, *skinning, labels, cfg.selection_weight)
+        xs = sel.reduce(train.pose)
     return Reduced(inp=inp, out=out, x=inp.reduce(train.pose), z=out.reduce(train.visibility), mask=out.mask,
-                   folds=folds)
+                   folds=folds, sel=sel, xs=xs)
 
 
-def _ends(red: Reduced) -> tuple[InputProjection, OutputUnprojection | GlobalUnprojection]:
-    proj = red.inp.components.T / red.inp.scale[None, :]
-    inp = InputProjection(red.inp.mean, proj)
+def _ends(red: Reduced, kind: str = "quadratic") -> tuple[InputProjection, OutputUnprojection | GlobalUnprojection]:
+    if red.sel is not None and kind in SELECTED_KINDS:
+        inp = InputProjection(red.sel.mean, red.sel.proj)
+    else:
+        inp = InputProjection(red.inp.mean, red.inp.components.T / red.inp.scale[None, :])
     if isinstance(red.out, GlobalOutputPCA):
         p = red.out.pca
         mean = np.repeat(p.mean[:, None], red.out.n_coeffs, axis=1).reshape(-1)  # (V, C) vertex-major
@@ -93,28 +114,57 @@ def _ends(red: Reduced) -> tuple[InputProjection, OutputUnprojection | GlobalUnp
     return inp, OutputUnprojection(basis, gather, mean, red.out.n_vertices, red.out.n_coeffs)
 
 
+def _masked_ridge_cv(x: np.ndarray, z: np.ndarray, mask: np.ndarray, folds: np.ndarray, grid: np.ndarray,
+                     in_mask: np.ndarray | None) -> np.ndarray:
+    """``ridge_cv`` with cluster ``g`` restricted to the inputs ``in_mask[g]`` -> ``(A, G)``."""
+    if in_mask is None:
+        return ridge_cv(x, z, mask, folds, grid)
+    return np.concatenate([ridge_cv(x * in_mask[g], z[:, g:g + 1], mask[g:g + 1], folds, grid)
+                           for g in range(z.shape[1])], axis=1)
+
+
+def _masked_ridge(x: np.ndarray, z: np.ndarray, alpha: np.ndarray, in_mask: np.ndarray | None,
+                  sample_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Ridge with one ``alpha (G,)`` per cluster (each on its own inputs): ``weight (d, G, K)``, ``bias (G, K)``.
+    A zeroed input column gets a zero weight (minimum-norm solution)."""
+    g = z.shape[1]
+    if in_mask is None:
+        in_mask = np.ones((g, x.shape[1]), dtype=bool)
+    w = np.zeros((x.shape[1], g, z.shape[2]))
+    b = np.zeros((g, z.shape[2]))
+    for i in range(g):
+        wi, bi = ridge_path(x * in_mask[i], z[:, i], np.asarray([alpha[i]]), sample_mask)
+        w[:, i], b[i] = wi[0] * in_mask[i][:, None], bi[0]
+    return w, b
+
+
 def fit_ridge_kind(kind: str, red: Reduced, alphas: list[float], fixed_alpha: float | None = None) -> FitResult:
     """Linear or quadratic ridge; alpha per cluster by blocked CV unless ``fixed_alpha``."""
     t0 = time.perf_counter()
-    x = torch.as_tensor(red.x)
+    xin, in_mask = red.inputs(kind)
+    x = torch.as_tensor(xin)
     feats = (quadratic_features(x) if kind == "quadratic" else x).numpy()
     g = red.z.shape[1]
     choice: dict[str, Any] = {}
     if fixed_alpha is None:
         grid = np.asarray(alphas, dtype=np.float64)
-        cv = ridge_cv(feats, red.z, red.mask, red.folds, grid)  # (A, G)
+        cv = _masked_ridge_cv(feats, red.z, red.mask, red.folds, grid, in_mask)  # (A, G)
         best = grid[np.argmin(cv, axis=0)]
         choice = {"alphas": grid.tolist(), "cv_error": cv.sum(axis=1).tolist(), "alpha": best.tolist()}
     else:
         best = np.full(g, float(fixed_alpha))
         choice = {"alpha": best.tolist()}
-    w, b = fit_ridge_per_group(feats, red.z, best)
+    if in_mask is None:
+        w, b = fit_ridge_per_group(feats, red.z, best)
+    else:
+        w, b = _masked_ridge(feats, red.z, best, in_mask)
+        choice["inputs_per_cluster"] = in_mask.sum(1).tolist()
     cls = QuadraticRegressor if kind == "quadratic" else LinearRegressor
-    reg = cls(red.x.shape[1], g, red.z.shape[2])
+    reg = cls(xin.shape[1], g, red.z.shape[2])
     with torch.no_grad():
         reg.weight.copy_(torch.as_tensor(w * red.mask[None]))
         reg.bias.copy_(torch.as_tensor(b * red.mask))
-    inp, out = _ends(red)
+    inp, out = _ends(red, kind)
     model = VisibilityModel(kind, inp, reg, out).float().eval()
     return FitResult(kind, model, time.perf_counter() - t0, choice)
 
@@ -122,7 +172,9 @@ def fit_ridge_kind(kind: str, red: Reduced, alphas: list[float], fixed_alpha: fl
 def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitResult:
     """Per-cluster tanh MLP: (neurons, alpha) per cluster by blocked CV, then one final L-BFGS."""
     t0 = time.perf_counter()
-    x = torch.as_tensor(red.x)
+    xin, in_mask = red.inputs("mlp")
+    x = torch.as_tensor(xin)
+    im = None if in_mask is None else torch.as_tensor(in_mask)
     z = torch.as_tensor(red.z)
     om = torch.as_tensor(red.mask)
     g = z.shape[1]
@@ -139,11 +191,14 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
 
     # L-BFGS starts from the ridge-linear solution (alpha per cluster by the same blocked CV)
     lin_grid = np.asarray(cfg.alphas, dtype=np.float64)
-    lin_alpha = lin_grid[np.argmin(ridge_cv(red.x, red.z, red.mask, red.folds, lin_grid), axis=0)]
+    lin_alpha = lin_grid[np.argmin(_masked_ridge_cv(xin, red.z, red.mask, red.folds, lin_grid, in_mask), axis=0)]
 
     def linear_init(train_mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        if in_mask is not None:
+            w, b = _masked_ridge(xin, red.z, lin_alpha, in_mask, train_mask)  # (d, G, K), (G, K)
+            return np.transpose(w, (1, 0, 2)) * red.mask[:, None, :], b * red.mask
         uniq, inv = np.unique(lin_alpha, return_inverse=True)
-        w, b = ridge_path(red.x, red.z, uniq, train_mask)  # (U, d, G, K), (U, G, K)
+        w, b = ridge_path(xin, red.z, uniq, train_mask)  # (U, d, G, K), (U, G, K)
         gi = np.arange(g)
         return np.transpose(w[inv, :, gi], (0, 1, 2)) * red.mask[:, None, :], b[inv, gi] * red.mask
 
@@ -160,7 +215,7 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
         for i, n in enumerate(neurons):
             params, _, _ = fit_mlp(x, z, om, weight, alpha_t, torch.ones(n_s, g, n), max_iter=cfg.cv_iter,
                                    seed=cfg.seed, history_size=cfg.history_size, progress=report(f"CV N={n}"),
-                                   init_linear=init)
+                                   init_linear=init, input_mask=im)
             with torch.no_grad():
                 from prt_torch.fit.mlp import mlp_forward
 
@@ -182,16 +237,17 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
     params, loss, iters = fit_mlp(x, z, om, torch.ones(1, x.shape[0]), torch.as_tensor(best_a)[None], nmask,
                                   max_iter=cfg.max_iter, seed=cfg.seed, history_size=cfg.history_size,
                                   progress=report("final"),
-                                  init_linear=(torch.as_tensor(w0)[None], torch.as_tensor(b0)[None]))
+                                  init_linear=(torch.as_tensor(w0)[None], torch.as_tensor(b0)[None]),
+                                  input_mask=im)
     if progress is not None:
         progress.remove_task(task)
-    reg = MLPRegressor(red.x.shape[1], g, red.z.shape[2], nmax)
+    reg = MLPRegressor(xin.shape[1], g, red.z.shape[2], nmax)
     with torch.no_grad():
         reg.hidden_weight.copy_(params.D[0])
         reg.hidden_bias.copy_(params.d0[0])
         reg.out_weight.copy_(params.C[0])
         reg.out_bias.copy_(params.c0[0])
-    inp, out = _ends(red)
+    inp, out = _ends(red, "mlp")
     model = VisibilityModel("mlp", inp, reg, out).float().eval()
     choice = {"neurons_grid": neurons, "alphas": alphas.tolist(), "cv_error": cv.sum(axis=2).tolist(),
               "neurons": best_n.tolist(), "alpha": best_a.tolist(), "objective": loss, "iterations": iters}
@@ -202,7 +258,7 @@ def fit_kinds(red: Reduced, cfg: TrainConfig, progress: Any = None) -> dict[str,
     """Fit every kind of ``cfg.kinds``."""
     out: dict[str, FitResult] = {}
     for kind in cfg.kinds:
-        _log(progress, f"fitting {kind} ({red.x.shape[0]} frames, {red.x.shape[1]} inputs, "
+        _log(progress, f"fitting {kind} ({red.x.shape[0]} frames, {red.inputs(kind)[0].shape[1]} inputs, "
                        f"{red.z.shape[1]} clusters x {red.z.shape[2]} outputs)")
         if kind == "mlp":
             out[kind] = fit_mlp_kind(red, cfg, progress)
@@ -228,6 +284,8 @@ def _metadata(info: DatasetInfo, cfg: TrainConfig, red: Reduced, fits: dict[str,
         "n_vertices": info.n_vertices,
         "n_features": info.n_features,
         "reduced_inputs": red.inp.n_components,
+        "input_selection": cfg.input_selection,
+        "selected_inputs": None if red.sel is None else int(red.sel.proj.shape[1]),
         "input_retained": red.inp.retained,
         "output_pca": cfg.output_pca,
         "output_dims": red.out.dims.tolist(),
@@ -269,7 +327,8 @@ def train_dataset(dataset: str | Path, run_dir: str | Path, cfg: TrainConfig | N
 def _train(dataset: str | Path, run_dir: Path, cfg: TrainConfig, info: DatasetInfo, progress: Any) -> dict[str, Any]:
     train = load_split(dataset, "train")
     check(train.n_frames >= 2 * cfg.folds, f"{dataset}: only {train.n_frames} training frames for {cfg.folds} folds")
-    red = reduce_training(train, info.cluster, cfg)
+    skinning = load_skinning(dataset) if cfg.input_selection == "joints" else None
+    red = reduce_training(train, info.cluster, cfg, skinning)
     _log(progress, f"input PCA: {info.n_features} -> {red.inp.n_components} dims ({red.inp.retained:.3f} variance); "
                    f"output PCA: {red.out.n_groups} clusters, dims {red.out.dims.min()}..{red.out.width}")
     fits = fit_kinds(red, cfg, progress)
