@@ -24,6 +24,16 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+def _quiet_vtk_display_probe() -> None:
+    """Headless: VTK logs "bad X server connection" before falling back to EGL; keep only its errors."""
+    try:
+        from vtkmodules.vtkCommonCore import vtkLogger
+
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
+    except (ImportError, AttributeError):  # an older VTK without vtkLogger: the warning is harmless
+        pass
+
+
 class MeshRenderer:
     """A pyvista plotter showing one mesh coloured per vertex.
 
@@ -39,6 +49,8 @@ class MeshRenderer:
                  off_screen: bool = True, background: tuple[float, float, float] = (0.08, 0.08, 0.1)) -> None:
         import pyvista as pv
 
+        if off_screen and not has_display():
+            _quiet_vtk_display_probe()
         vertices = np.asarray(vertices, dtype=np.float32)
         faces = np.asarray(faces)
         if vertices.ndim != 2 or vertices.shape[1] != 3:
