@@ -1,7 +1,9 @@
 """Which frames a run bakes: the character and its posed clips, from the config's ``character`` section.
 
-Clip order in the dataset: ``train_clips``, then ``"random"`` (``random_poses`` independent poses
-within the joint limits, training), then ``heldout_clips``. Splits: ``train`` = train clips +
+Clip order in the dataset: ``train_clips``, then ``"random"`` (``random_poses`` random poses,
+training; ``random_mode`` picks the sampler of :mod:`prt_torch.rig.random_pose`, whose ``"sparse"``
+base poses come from the bind pose and ``train_clips`` only, never the held-out clips), then
+``heldout_clips``. Splits: ``train`` = train clips +
 random; ``heldout`` = held-out clips. Named clips are resampled at ``character.fps``.
 """
 
@@ -100,7 +102,10 @@ def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
         poses.append(character.pose(name, fps=ch.fps))
     if ch.random_poses:
         names.append(RANDOM_CLIP)
-        poses.append(character.pose(random_poses(character, ch.random_poses, seed=ch.seed, fps=ch.fps)))
+        rnd = random_poses(character, ch.random_poses, seed=ch.seed, fps=ch.fps, mode=ch.random_mode,
+                           base_clips=train, base_clip_prob=ch.random_base_prob, max_chains=ch.random_max_chains,
+                           segment=ch.random_segment)
+        poses.append(character.pose(rnd))
     for name in heldout:
         names.append(name)
         poses.append(character.pose(name, fps=ch.fps))

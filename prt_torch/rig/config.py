@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
 
 
@@ -21,4 +23,11 @@ class CharacterConfig(BaseModel):
     train_clips: list[str] = Field(default_factory=list)
     heldout_clips: list[str] = Field(default_factory=list)
     random_poses: int = Field(default=0, ge=0)  # random poses within joint limits added to training
+    # how they are sampled (prt_torch.rig.random_pose): "uniform" moves every joint; "sparse" moves
+    # 1..random_max_chains joint chains of the bind pose or (probability random_base_prob) of a random
+    # train_clips frame, key poses joined by random_segment interpolated frames (1 = independent poses)
+    random_mode: Literal["uniform", "sparse"] = "uniform"
+    random_max_chains: int = Field(default=3, ge=1)
+    random_base_prob: float = Field(default=0.5, ge=0.0, le=1.0)
+    random_segment: int = Field(default=1, ge=1)
     seed: int = 0

@@ -1,0 +1,160 @@
+"""Sparse / trajectory random poses (prt_torch.rig.random_pose) and their config path (bake plan)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from prt_torch.bake.plan import RANDOM_CLIP, make_plan
+from prt_torch.config import config_from_dict
+from prt_torch.errors import PrtError
+from prt_torch.rig import builtin
+from prt_torch.rig.character import Character
+from prt_torch.rig.random_pose import joint_chains, random_poses
+
+N = 96
+
+
+def _limit_angles(humanoid: Character, local: np.ndarray) -> np.ndarray:
+    """``(F, J, 3)`` bind-relative ``(a_x, a_y, a_z)`` degrees by scipy's intrinsic X-Z-Y Euler decomposition."""
+    rel = np.swapaxes(humanoid.bind_local[None, :, :3, :3], -1, -2) @ local[..., :3, :3]
+    xzy = Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_euler("XZY", degrees=True).reshape(*local.shape[:2], 3)
+    return xzy[..., [0, 2, 1]]
+
+
+def test_joint_chains_of_the_humanoid() -> None:
+    names = builtin.JOINT_NAMES
+    parents = np.array([-1 if p is None else names.index(p) for _, p, _ in builtin._joint_table()])
+    got = [[names[j] for j in c] for c in joint_chains(parents)]
+    expected = [["spine", "chest"], ["neck", "head"]]
+    expected += [[f"{j}_{s}" for j in ("clavicle", "shoulder", "elbow", "wrist")] for s in "lr"]
+    expected += [[f"{j}_{s}" for j in ("hip", "knee", "ankle", "toe")] for s in "lr"]
+    assert got == expected
+
+
+def test_joint_chains_partition_any_tree() -> None:
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        j = int(rng.integers(2, 30))
+        parents = np.array([-1] + [int(rng.integers(0, c)) for c in range(1, j)])
+        chains = joint_chains(parents)
+        flat = sorted(x for c in chains for x in c)
+        assert flat == list(range(1, j))  # every non-root joint exactly once
+        for c in chains:
+            assert all(parents[b] == a for a, b in zip(c[:-1], c[1:], strict=False))  # a parent -> child path
+            assert all(np.count_nonzero(parents == a) == 1 for a in c[:-1])  # no branch inside a chain
+
+
+def test_sparse_moves_few_chains_within_limits_from_training_bases(humanoid: Character) -> None:
+    clip = random_poses(humanoid, N, seed=5, mode="sparse", base_clips=["stretch", "squat"], max_chains=2)
+    assert clip.num_frames == N
+    chains = joint_chains(humanoid.parents)
+    bases = np.concatenate([humanoid.bind_local[None], humanoid.clips["stretch"].local,
+                            humanoid.clips["squat"].local])  # (B, J, 4, 4)
+    lim = builtin.JOINT_LIMITS_DEG
+    angles = _limit_angles(humanoid, clip.local)
+    n_from_clip = 0
+    for f in range(N):
+        # the base: the candidate agreeing exactly with the most joints (root included)
+        same = np.all(np.isclose(bases, clip.local[f][None], rtol=0, atol=1e-12), axis=(-1, -2))  # (B, J)
+        b = int(np.argmax(same.sum(1)))
+        assert same[b, 0]  # the root keeps the base transform
+        n_from_clip += b > 0
+        moved = [c for c in chains if not same[b, c].all()]
+        assert 1 <= len(moved) <= 2
+        for c in moved:  # moved chains: every joint within the limits
+            a = angles[f, c]
+            assert np.all(a >= lim[c, :, 0] - 1e-6) and np.all(a <= lim[c, :, 1] + 1e-6)
+        assert sum(len(c) for c in moved) + same[b].sum() == humanoid.num_joints
+    assert 0.3 * N < n_from_clip < 0.7 * N  # base_clip_prob = 0.5
+    # every chain gets moved somewhere, covering most of each joint's range
+    span = angles.max(0) - angles.min(0)
+    width = lim[..., 1] - lim[..., 0]
+    assert np.all(span[1:][width[1:] > 0] > 0.4 * width[1:][width[1:] > 0])
+
+
+def test_sparse_is_deterministic_and_never_uses_other_clips(humanoid: Character) -> None:
+    a = random_poses(humanoid, 40, seed=2, mode="sparse", base_clips=["run"], base_clip_prob=1.0)
+    np.testing.assert_array_equal(a.local, random_poses(humanoid, 40, seed=2, mode="sparse", base_clips=["run"],
+                                                        base_clip_prob=1.0).local)
+    assert not np.allclose(a.local, random_poses(humanoid, 40, seed=3, mode="sparse", base_clips=["run"],
+                                                 base_clip_prob=1.0).local)
+    # all bases are run frames: the root of every pose is a run frame's root, never a wave frame's
+    run_roots = humanoid.clips["run"].local[:, 0]
+    wave_roots = humanoid.clips["wave"].local[:, 0]
+    d_run = np.abs(a.local[:, None, 0] - run_roots[None]).max(axis=(-1, -2)).min(1)
+    d_wave = np.abs(a.local[:, None, 0] - wave_roots[None]).max(axis=(-1, -2)).min(1)
+    assert np.all(d_run == 0) and np.all(d_wave > 0)
+    # no base clips: the root and the unmoved joints stay at the bind pose
+    b = random_poses(humanoid, 40, seed=2, mode="sparse")
+    np.testing.assert_array_equal(b.local[:, 0], np.tile(humanoid.bind_local[0], (40, 1, 1)))
+
+
+def test_sparse_trajectories_are_slerps_between_key_poses(humanoid: Character) -> None:
+    seg = 5
+    n = 4 * seg + 1
+    traj = random_poses(humanoid, n, seed=7, mode="sparse", segment=seg, base_clips=["stretch"])
+    assert traj.num_frames == n
+    r = traj.local[..., :3, :3]
+    for k in range(4):
+        key_a, key_b = r[k * seg], r[(k + 1) * seg]
+        total = Rotation.from_matrix(np.swapaxes(key_a, -1, -2) @ key_b).magnitude()  # (J,)
+        steps = Rotation.from_matrix(np.swapaxes(r[k * seg:(k + 1) * seg], -1, -2) @ r[k * seg + 1:(k + 1) * seg + 1]
+                                     ).magnitude()  # (seg, J) per-frame step angles
+        np.testing.assert_allclose(steps, np.broadcast_to(total / seg, steps.shape), atol=1e-9)  # constant speed
+    t = traj.local[..., :3, 3]  # translations: linear between keys (second differences vanish inside a segment)
+    np.testing.assert_allclose(t[2:seg + 1] - 2 * t[1:seg] + t[:seg - 1], 0.0, atol=1e-12)
+
+
+def test_sparse_without_limits_perturbs_chains_of_clip_frames(humanoid: Character) -> None:
+    c = replace(humanoid, joint_limits=None)
+    clip = random_poses(c, 30, seed=0, mode="sparse", base_clips=["squat"], base_clip_prob=1.0, perturb_deg=12.0)
+    frames = c.clips["squat"].local[:, :, :3, :3]
+    rel = np.swapaxes(frames[:, None], -1, -2) @ clip.local[None, :, :, :3, :3]  # (Fs, N, J, 3, 3)
+    ang = np.degrees(Rotation.from_matrix(rel.reshape(-1, 3, 3)).magnitude()).reshape(rel.shape[:3])
+    best = (ang < 1e-9).sum(-1).argmax(0)  # the base frame of each pose: most joints unchanged
+    per_joint = ang[best, np.arange(30)]  # (N, J)
+    assert np.all(per_joint <= 12.0 + 1e-6)
+    assert np.all((per_joint > 1e-9).sum(1) <= 3 * 4)  # at most max_chains=3 chains of <= 4 joints move
+
+
+def test_bad_arguments(humanoid: Character) -> None:
+    with pytest.raises(PrtError, match="random pose mode"):
+        random_poses(humanoid, 4, mode="grid")
+    with pytest.raises(PrtError, match="segment"):
+        random_poses(humanoid, 4, mode="sparse", segment=0)
+    with pytest.raises(PrtError, match="max_chains"):
+        random_poses(humanoid, 4, mode="sparse", max_chains=0)
+    with pytest.raises(PrtError, match="base_clip_prob"):
+        random_poses(humanoid, 4, mode="sparse", base_clip_prob=1.5)
+    with pytest.raises(PrtError, match="unknown clip 'moonwalk'"):
+        random_poses(humanoid, 4, mode="sparse", base_clips=["moonwalk"])
+    with pytest.raises(PrtError, match="perturb_deg"):
+        random_poses(humanoid, 4, perturb_deg=float("nan"))
+
+
+def _cfg(**character: object) -> dict:
+    ch = {"source": "builtin", "density": 0.05, "fps": 5.0, "train_clips": ["stretch"], "heldout_clips": ["wave"],
+          "random_poses": 24, "seed": 1}
+    ch.update(character)
+    return {"name": "t", "character": ch}
+
+
+def test_plan_uses_the_sparse_sampler_with_training_bases_only() -> None:
+    cfg = config_from_dict(_cfg(random_mode="sparse", random_base_prob=1.0, random_segment=3))
+    plan = make_plan(cfg)
+    rid = plan.clip_names.index(RANDOM_CLIP)
+    expected = random_poses(plan.character, 24, seed=1, fps=5.0, mode="sparse", base_clips=["stretch"],
+                            base_clip_prob=1.0, segment=3)
+    np.testing.assert_allclose(plan.pose[plan.clip_id == rid], plan.character.pose(expected).features, atol=1e-6)
+    assert plan.splits == {"train": ["stretch", RANDOM_CLIP], "heldout": ["wave"]}
+    uniform = make_plan(config_from_dict(_cfg()))  # default stays the original sampler
+    np.testing.assert_allclose(uniform.pose[uniform.clip_id == rid],
+                               plan.character.pose(random_poses(plan.character, 24, seed=1)).features, atol=1e-6)
+    with pytest.raises(PrtError, match="random_mode"):
+        config_from_dict(_cfg(random_mode="grid"))
+    with pytest.raises(PrtError, match="random_segment"):
+        config_from_dict(_cfg(random_segment=0))
