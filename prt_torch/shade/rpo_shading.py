@@ -57,7 +57,8 @@ class RPOTensors:
         I, J, G = gaunt_gather_tensors(rpo.order, dtype, device)
 
         def t(a: np.ndarray) -> torch.Tensor:
-            return torch.as_tensor(np.asarray(a), dtype=dtype, device=device)
+            a = np.asarray(a)  # cached tables are read-only: copy those rather than alias them
+            return torch.as_tensor(a if a.flags.writeable else a.copy(), dtype=dtype, device=device)
 
         return cls(t(rpo.M), t(rpo.u), t(rpo.w), t(rpo.tint), I, J, G, t(gaunt_flat(rpo.order)), rpo.order)
 
