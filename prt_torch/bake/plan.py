@@ -104,7 +104,7 @@ def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
         names.append(RANDOM_CLIP)
         rnd = random_poses(character, ch.random_poses, seed=ch.seed, fps=ch.fps, mode=ch.random_mode,
                            base_clips=train, base_clip_prob=ch.random_base_prob, max_chains=ch.random_max_chains,
-                           segment=ch.random_segment)
+                           segment=ch.random_segment, near_base=ch.random_near_base)
         poses.append(character.pose(rnd))
     for name in heldout:
         names.append(name)

@@ -30,4 +30,5 @@ class CharacterConfig(BaseModel):
     random_max_chains: int = Field(default=3, ge=1)
     random_base_prob: float = Field(default=0.5, ge=0.0, le=1.0)
     random_segment: int = Field(default=1, ge=1)
+    random_near_base: float = Field(default=0.0, ge=0.0, le=1.0)  # sparse: P(moved joint lands near its base)
     seed: int = 0

@@ -23,8 +23,9 @@ covered without teaching a cluster correlations with far-away limbs that real mo
   uniformly random frame of one of ``base_clips`` (the caller passes TRAINING clips only; the root
   and every joint outside the chosen chains keep the base frame's transforms), then ``1..max_chains``
   distinct chains (uniform count, uniform choice) get new rotations: uniform within the joint limits
-  (as in ``"uniform"``) or, without limits, the base rotation times a random rotation of angle up to
-  ``perturb_deg``.
+  (as in ``"uniform"``; with probability ``near_base`` per joint, a uniform fraction of the way from
+  the base's angles to that sample, to concentrate poses near plausible ones) or, without limits,
+  the base rotation times a random rotation of angle up to ``perturb_deg``.
 * ``segment > 1`` turns the key poses into continuous trajectories: consecutive key poses are joined
   by ``segment`` frames of per-joint geodesic (slerp) rotation and linear translation interpolation,
   so CV folds blocked by contiguous frame ranges hold out whole motions. ``segment = 1`` gives
@@ -92,11 +93,32 @@ def _random_rotations(rng: np.random.Generator, shape: tuple[int, ...], max_deg:
     return np.eye(3) + s * k + (1 - c) * (k @ k)
 
 
-def _limit_rotations(character: Character, rng: np.random.Generator, n: int) -> np.ndarray:
-    """``(n, J, 3, 3)`` local rotations uniform within the joint limits (``R_bind @ R(angles)``)."""
+def limit_angles(character: Character, local: np.ndarray) -> np.ndarray:
+    """Bind-relative angles ``(..., J, 3)`` = ``(a_x, a_y, a_z)`` radians of local transforms ``(..., J, 4, 4)``.
+
+    The inverse of ``R_bind @ R_x(a_x) @ R_z(a_z) @ R_y(a_y)`` (intrinsic X-Z-Y Euler angles, scipy).
+    """
+    rel = np.swapaxes(character.bind_local[..., :3, :3], -1, -2) @ local[..., :3, :3]
+    xzy = Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_euler("XZY").reshape(*rel.shape[:-2], 3)
+    return xzy[..., [0, 2, 1]]
+
+
+def _limit_rotations(character: Character, rng: np.random.Generator, n: int, base: np.ndarray | None = None,
+                     near_base: float = 0.0) -> np.ndarray:
+    """``(n, J, 3, 3)`` local rotations uniform within the joint limits (``R_bind @ R(angles)``).
+
+    With ``base (n, J, 4, 4)`` and ``near_base > 0``: with probability ``near_base`` per (pose, joint)
+    the angles are ``base + f * (uniform - base)`` with ``f ~ U(0, 1)`` (between the base and a uniform
+    sample: concentrated near the base, within the limits whenever the base is).
+    """
     lim = character.joint_limits
     u = rng.random((n, character.num_joints, 3))
     angles = lim[None, :, :, 0] + u * (lim[None, :, :, 1] - lim[None, :, :, 0])
+    if base is not None and near_base > 0:
+        near = rng.random((n, character.num_joints)) < near_base
+        f = np.where(near, rng.random((n, character.num_joints)), 1.0)[..., None]
+        b = limit_angles(character, base)
+        angles = b + f * (angles - b)
     return character.bind_local[None, :, :3, :3] @ compose_limit_angles(angles)
 
 
@@ -120,7 +142,8 @@ def _interpolate(keys: np.ndarray, segment: int, n: int) -> np.ndarray:
 
 
 def _sparse_poses(character: Character, n: int, rng: np.random.Generator, perturb_deg: float,
-                  base_clips: Sequence[Clip], base_clip_prob: float, max_chains: int, segment: int) -> np.ndarray:
+                  base_clips: Sequence[Clip], base_clip_prob: float, max_chains: int, segment: int,
+                  near_base: float) -> np.ndarray:
     """Local transforms ``(n, J, 4, 4)`` of the ``"sparse"`` mode (see the module docstring)."""
     j = character.num_joints
     chains = joint_chains(character.parents)
@@ -148,7 +171,7 @@ def _sparse_poses(character: Character, n: int, rng: np.random.Generator, pertur
     moved[:, nonroot] = chosen_chain[:, joint_chain[nonroot]]
     # new rotations for the moved joints
     if character.joint_limits is not None:
-        new = _limit_rotations(character, rng, n_keys)
+        new = _limit_rotations(character, rng, n_keys, base if near_base > 0 else None, near_base)
     else:
         new = base[..., :3, :3] @ _random_rotations(rng, (n_keys, j), perturb_deg)
     keys = base.copy()
@@ -159,14 +182,16 @@ def _sparse_poses(character: Character, n: int, rng: np.random.Generator, pertur
 def random_poses(character: Character, n: int, seed: int = 0, perturb_deg: float = 20.0,
                  name: str = "random", fps: float = 30.0, mode: str = "uniform",
                  base_clips: Sequence[str | Clip] = (), base_clip_prob: float = 0.5, max_chains: int = 3,
-                 segment: int = 1) -> Clip:
+                 segment: int = 1, near_base: float = 0.0) -> Clip:
     """``n`` random poses of ``character`` as a :class:`Clip`; deterministic in ``seed``.
 
     ``mode="uniform"``: independent frames moving every joint (``base_clips`` etc. unused).
     ``mode="sparse"``: each key pose moves ``1..max_chains`` joint chains of a base pose (the bind
     pose or, with probability ``base_clip_prob``, a random frame of ``base_clips``: names of the
     character's clips or :class:`Clip` objects; pass training clips only), key poses joined by
-    ``segment`` interpolated frames (``1``: independent poses). See the module docstring.
+    ``segment`` interpolated frames (``1``: independent poses); ``near_base``: the probability that a
+    moved joint lands between its base angles and the uniform sample (joint limits only). See the
+    module docstring.
     """
     check(isinstance(n, int | np.integer) and n >= 1, f"number of random poses must be >= 1, got {n}")
     check(mode in MODES, f"unknown random pose mode {mode!r}; expected one of {list(MODES)}")
@@ -174,6 +199,7 @@ def random_poses(character: Character, n: int, seed: int = 0, perturb_deg: float
     check(isinstance(max_chains, int | np.integer) and max_chains >= 1,
           f"random pose max_chains must be >= 1, got {max_chains}")
     check(0.0 <= base_clip_prob <= 1.0, f"random pose base_clip_prob must be in [0, 1], got {base_clip_prob}")
+    check(0.0 <= near_base <= 1.0, f"random pose near_base must be in [0, 1], got {near_base}")
     check(np.isfinite(perturb_deg) and perturb_deg >= 0, f"perturb_deg must be finite and >= 0, got {perturb_deg}")
     rng = np.random.default_rng(seed)
     j = character.num_joints
@@ -182,7 +208,7 @@ def random_poses(character: Character, n: int, seed: int = 0, perturb_deg: float
         check(character.joint_limits is not None or len(clips) > 0 or perturb_deg > 0,
               "sparse random poses need joint limits, base clips or perturb_deg > 0")
         return Clip(name, fps, _sparse_poses(character, n, rng, perturb_deg, clips, base_clip_prob, max_chains,
-                                             segment))
+                                             segment, near_base))
     local = np.tile(character.bind_local, (n, 1, 1, 1))
     nonroot = character.parents >= 0
     if character.joint_limits is not None:

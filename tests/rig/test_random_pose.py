@@ -13,7 +13,7 @@ from prt_torch.config import config_from_dict
 from prt_torch.errors import PrtError
 from prt_torch.rig import builtin
 from prt_torch.rig.character import Character
-from prt_torch.rig.random_pose import joint_chains, random_poses
+from prt_torch.rig.random_pose import compose_limit_angles, joint_chains, limit_angles, random_poses
 
 N = 96
 
@@ -121,6 +121,32 @@ def test_sparse_without_limits_perturbs_chains_of_clip_frames(humanoid: Characte
     assert np.all((per_joint > 1e-9).sum(1) <= 3 * 4)  # at most max_chains=3 chains of <= 4 joints move
 
 
+def test_limit_angles_invert_the_composition(humanoid: Character) -> None:
+    rng = np.random.default_rng(0)
+    ang = np.radians(rng.uniform(-80.0, 80.0, (7, humanoid.num_joints, 3)))
+    ang[..., 2] = np.clip(ang[..., 2], -1.4, 1.4)  # XZY Euler angles are unique for |a_z| < 90 degrees
+    local = np.tile(humanoid.bind_local, (7, 1, 1, 1))
+    # the composition by explicit axis-angle matrices from scipy (independent of compose_limit_angles)
+    rx, ry, rz = (Rotation.from_rotvec(np.einsum("...,k->...k", ang[..., i], np.eye(3)[i]).reshape(-1, 3))
+                  .as_matrix().reshape(7, -1, 3, 3) for i in (0, 1, 2))
+    local[..., :3, :3] = humanoid.bind_local[:, :3, :3] @ rx @ rz @ ry
+    np.testing.assert_allclose(compose_limit_angles(ang), rx @ rz @ ry, atol=1e-12)
+    np.testing.assert_allclose(limit_angles(humanoid, local), ang, atol=1e-9)
+
+
+def test_near_base_concentrates_moved_joints_near_the_base(humanoid: Character) -> None:
+    lim = np.radians(builtin.JOINT_LIMITS_DEG)
+    far = random_poses(humanoid, 400, seed=4, mode="sparse", near_base=0.0)  # bind bases: angles 0
+    near = random_poses(humanoid, 400, seed=4, mode="sparse", near_base=1.0)
+    a_far, a_near = np.abs(limit_angles(humanoid, far.local)), np.abs(limit_angles(humanoid, near.local))
+    a = limit_angles(humanoid, near.local)
+    assert np.all(a >= lim[None, :, :, 0] - 1e-9) and np.all(a <= lim[None, :, :, 1] + 1e-9)  # bind is inside
+    # moved joints: |angle| is f * |uniform| with f ~ U(0, 1): half the mean of the uniform sampler's
+    m_far = a_far[a_far > 1e-9].mean()
+    m_near = a_near[a_near > 1e-9].mean()
+    assert 0.4 * m_far < m_near < 0.6 * m_far
+
+
 def test_bad_arguments(humanoid: Character) -> None:
     with pytest.raises(PrtError, match="random pose mode"):
         random_poses(humanoid, 4, mode="grid")
@@ -132,6 +158,8 @@ def test_bad_arguments(humanoid: Character) -> None:
         random_poses(humanoid, 4, mode="sparse", base_clip_prob=1.5)
     with pytest.raises(PrtError, match="unknown clip 'moonwalk'"):
         random_poses(humanoid, 4, mode="sparse", base_clips=["moonwalk"])
+    with pytest.raises(PrtError, match="near_base"):
+        random_poses(humanoid, 4, mode="sparse", near_base=-0.1)
     with pytest.raises(PrtError, match="perturb_deg"):
         random_poses(humanoid, 4, perturb_deg=float("nan"))
 
