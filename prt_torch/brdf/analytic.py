@@ -57,6 +57,11 @@ def _check_weights(kd: float, ks: float) -> None:
         raise PrtError(f"BRDF weights need kd, ks >= 0 and kd + ks <= 1 (energy), got kd={kd}, ks={ks}")
 
 
+def _check_exponent(exponent: float, what: str) -> None:
+    if not np.isfinite(exponent) or exponent < 0:
+        raise PrtError(f"{what} exponent must be finite and >= 0, got {exponent}")
+
+
 def _half(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     h = wi + wo
     n = np.linalg.norm(h, axis=1, keepdims=True)
@@ -116,8 +121,7 @@ class Phong(BRDF):
     def __post_init__(self) -> None:
         super().__post_init__()
         _check_weights(self.kd, self.ks)
-        if not np.isfinite(self.exponent) or self.exponent < 0:
-            raise PrtError(f"Phong exponent must be finite and >= 0, got {self.exponent}")
+        _check_exponent(self.exponent, "Phong")
 
     def _shape(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
         c = np.maximum(-wi[:, 0] * wo[:, 0] - wi[:, 1] * wo[:, 1] + wi[:, 2] * wo[:, 2], 0.0)
@@ -136,8 +140,7 @@ class BlinnPhong(BRDF):
     def __post_init__(self) -> None:
         super().__post_init__()
         _check_weights(self.kd, self.ks)
-        if not np.isfinite(self.exponent) or self.exponent < 0:
-            raise PrtError(f"Blinn-Phong exponent must be finite and >= 0, got {self.exponent}")
+        _check_exponent(self.exponent, "Blinn-Phong")
 
     @property
     def norm(self) -> float:
