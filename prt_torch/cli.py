@@ -27,6 +27,8 @@ COMMANDS: dict[str, str] = {
     "eval": "prt_torch.commands.eval",
     "export": "prt_torch.commands.export",
     "play": "prt_torch.commands.play",
+    "compare": "prt_torch.commands.compare",
+    "info": "prt_torch.commands.info",
     "bench": "prt_torch.commands.bench",
 }
 

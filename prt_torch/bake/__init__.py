@@ -1,8 +1,8 @@
 """prt_torch.bake: the ground-truth bake (Embree rays -> local-frame SH visibility -> zarr dataset).
 
-Public API (imported lazily so that ``prt_torch.bake.frames`` stays light for the player):
+Public API (imported lazily so that ``prt_torch.rig.vertex_frames`` stays light for the player):
 ``bake(cfg, workers=None, scheduler=None, progress=True) -> Path``, ``run_bake``,
-``open_dataset(path) -> BakedDataset``, ``local_frames``.
+``open_dataset(path) -> BakedDataset``, ``vertex_frames``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ _LAZY = {
     "run_bake": "prt_torch.bake.runner",
     "open_dataset": "prt_torch.bake.store",
     "BakedDataset": "prt_torch.bake.store",
-    "local_frames": "prt_torch.bake.frames",
+    "vertex_frames": "prt_torch.rig.vertex_frames",
 }
 
 __all__ = sorted(_LAZY)

@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from prt_torch.bake.embree import ray_offset, require_embreex
-from prt_torch.bake.frame import RaySet, bake_frame
-from prt_torch.bake.frames import cluster_axes, cluster_bones, cluster_vertices, local_frames
+from prt_torch.bake.trace import RaySet, trace_frame
+from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
     CHARACTER_FILE,
@@ -135,14 +135,14 @@ def bake_block(task: BlockTask) -> BlockStats:
         ch = ctx.character
         pos, nrm = skin(task.skin, ctx.dense_w, ch.rest_vertices, ch.rest_normals)
         assert nrm is not None
-        frames = local_frames(nrm, task.skin, ctx.labels, ctx.axes, ctx.bones)
+        frames = vertex_frames(nrm, task.skin, ctx.labels, ctx.axes, ctx.bones)
         n = task.f1 - task.f0
         V = ch.num_vertices
         vis = np.empty((n, V, int(p["order"]) ** 2), dtype=np.float32)
         tr = np.empty((n, V, int(p["transfer_order"]) ** 2), dtype=np.float32) if p["transfer"] else None
         rays = 0
         for i in range(n):
-            res = bake_frame(pos[i], frames[i], ch.faces, ctx.rays, float(p["ray_offset_world"]),
+            res = trace_frame(pos[i], frames[i], ch.faces, ctx.rays, float(p["ray_offset_world"]),
                              transfer_order=int(p["transfer_order"]) if p["transfer"] else None,
                              bounces=int(p["bounces"]) if p["transfer"] else 0, albedo=float(p["albedo"]),
                              max_rays=int(p["vertex_chunk_rays"]))

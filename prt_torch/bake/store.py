@@ -16,7 +16,7 @@ clusters): ``pose (F, A)``, ``visibility (F, V, C)`` local frame, ``transfer (F,
 frame (optional), ``positions``/``normals (F, V, 3)`` world, ``frames (F, V, 3, 3)`` rows
 ``(t, b, n)``, ``clip_id``/``frame_index (F,)`` int32, ``done (F,)`` bool, ``faces (T, 3)`` int32,
 ``cluster (V,)`` int32, ``cluster_axis (Kc, 3)`` float32 rest-pose cluster axes, ``cluster_bone
-(Kc,)`` int32 dominant bones (``prt_torch.bake.frames.local_frames`` rebuilds the frames from
+(Kc,)`` int32 dominant bones (``prt_torch.rig.vertex_frames.vertex_frames`` rebuilds the frames from
 these three and the posed normals/skin).
 """
 
@@ -26,6 +26,7 @@ import contextlib
 import os
 import shutil
 import uuid
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -55,7 +56,6 @@ CONVENTIONS = {
     "rays": "shared spherical-Fibonacci hemisphere set rotated per vertex about n by a fixed seeded angle",
 }
 
-CHARACTER_FILE = "character.npz"
 
 
 def library_versions() -> dict[str, str]:
@@ -127,8 +127,31 @@ def check_compatible(path: Path, attrs: dict[str, Any], existing: dict[str, Any]
         raise PrtError(f"{path} holds a different frame list (clips, fps, random poses); nothing written")
 
 
+@dataclass
+class SplitData:
+    """The completed frames of one split (``train`` or ``heldout``), in stored order.
+
+    ``pose (F, A)`` float32, ``visibility (F, V, C)`` float32 (local frame), ``clip_id`` /
+    ``frame_index (F,)`` int, ``rows (F,)`` their dataset rows, ``clips`` the split's clip names and
+    ``extra`` the further per-frame arrays asked for (``positions``, ``normals``, ``frames``, ``transfer``).
+    """
+
+    name: str
+    pose: np.ndarray
+    visibility: np.ndarray
+    clip_id: np.ndarray
+    frame_index: np.ndarray
+    clips: list[str]
+    rows: np.ndarray
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.pose.shape[0])
+
+
 class BakedDataset:
-    """Read access to a baked ``dataset.zarr`` (numpy arrays, read when asked for).
+    """Read access to a baked ``dataset.zarr`` (numpy arrays, read when asked for): the only dataset reader.
 
     Small arrays (``pose``, ``clip_id``, ``faces``, ``cluster``, ...) are cached; the big per-frame
     ones (``visibility``, ``transfer``, ``positions``, ``normals``, ``frames``) are read anew on
@@ -179,6 +202,19 @@ class BakedDataset:
     @property
     def n_vertices(self) -> int:
         return int(self._group["visibility"].shape[1])
+
+    @property
+    def n_coeffs(self) -> int:
+        return int(self._group["visibility"].shape[2])
+
+    @property
+    def n_features(self) -> int:
+        return int(self._group["pose"].shape[1])
+
+    @property
+    def order(self) -> int:
+        """SH order of the visibility (``C = order**2``)."""
+        return int(round(self.n_coeffs**0.5))
 
     def array(self, name: str) -> Any:
         """The zarr array ``name`` (for sliced reads)."""
@@ -274,6 +310,54 @@ class BakedDataset:
         ids = [self.clip_names.index(c) for c in self.splits[split]]
         return np.isin(self.clip_id, ids)
 
+    def split_rows(self, split: str) -> np.ndarray:
+        """``(F_split,)`` int64 dataset rows of the DONE frames of ``split``, in stored order."""
+        return np.flatnonzero(self.split_mask(split) & self.done)
+
+    def clip_rows(self, clip: str) -> np.ndarray:
+        """``(F_clip,)`` int64 dataset rows of the DONE frames of clip ``clip``."""
+        return np.flatnonzero(self.clip_mask(clip) & self.done)
+
+    def rows(self, rows: np.ndarray, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """Per-frame arrays ``names`` at dataset ``rows`` (one orthogonal zarr read each)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        out = {}
+        for name in names:
+            a = self.array(name)
+            out[name] = np.asarray(a.get_orthogonal_selection((rows,) + (slice(None),) * (len(a.shape) - 1)))
+        return out
+
+    def split(self, split: str, extra: tuple[str, ...] = (), max_frames: int | None = None,
+              contiguous: bool = False, rows: np.ndarray | None = None) -> SplitData:
+        """The done frames of ``split`` (a key of the ``splits`` attribute).
+
+        ``extra`` names further per-frame arrays to read (``positions``, ``normals``, ``frames``,
+        ``transfer``). ``max_frames`` keeps an evenly strided subset, or with ``contiguous`` the first
+        ``ceil(max_frames / n_clips)`` consecutive frames of each clip (frame-to-frame measures stay
+        meaningful); ``None`` keeps every frame. ``rows``: use these dataset rows instead.
+        """
+        idx = self.split_rows(split) if rows is None else np.asarray(rows, dtype=np.int64)
+        if len(idx) == 0:
+            raise PrtError(f"{self.path}: split '{split}' has no baked frames")
+        clip_id = self.clip_id
+        if max_frames is not None and len(idx) > max_frames:
+            if contiguous:
+                ids = clip_id[idx]
+                per = max(2, -(-max_frames // len(np.unique(ids))))
+                idx = np.sort(np.concatenate([idx[ids == c][:per] for c in np.unique(ids)]))
+            else:
+                idx = idx[np.linspace(0, len(idx) - 1, max_frames).round().astype(np.int64)]
+        data = self.rows(idx, ("pose", "visibility", *extra))
+        pose = data.pop("pose").astype(np.float32)
+        vis = data.pop("visibility").astype(np.float32)
+        if not np.isfinite(pose).all():
+            raise PrtError(f"{self.path}: pose features of split '{split}' contain NaN or Inf")
+        if not np.isfinite(vis).all():
+            raise PrtError(f"{self.path}: visibility of split '{split}' contains NaN or Inf")
+        names = self.splits.get(split, [])
+        return SplitData(name=split, pose=pose, visibility=vis, clip_id=clip_id[idx], frame_index=self.frame_index[idx],
+                         clips=[c for c in names if c in self.clip_names], rows=idx, extra=data)
+
     @property
     def train_mask(self) -> np.ndarray:
         """``(F,)`` bool training frames."""
@@ -285,13 +369,10 @@ class BakedDataset:
         return self.split_mask("heldout")
 
     def character(self) -> Character:
-        """The baked character, from ``character.npz`` next to the dataset (hash-checked)."""
-        from prt_torch.rig.character import Character
+        """The baked character of the run directory holding the dataset (hash-checked)."""
+        from prt_torch.rundir import RunDir
 
-        ch = Character.load(self.path.parent / CHARACTER_FILE)
-        if self.character_hash and ch.content_hash() != self.character_hash:
-            raise PrtError(f"{self.path.parent / CHARACTER_FILE} is not the character {self.path} was baked from")
-        return ch
+        return RunDir(self.path).character(expect_hash=self.character_hash or None)
 
     def __repr__(self) -> str:
         return (f"BakedDataset({str(self.path)!r}, frames={self.n_frames}, vertices={self.n_vertices}, "
@@ -299,10 +380,12 @@ class BakedDataset:
 
 
 def open_dataset(path: str | os.PathLike[str]) -> BakedDataset:
-    """Open a baked ``dataset.zarr`` for reading (a run directory holding one is accepted too)."""
+    """Open a baked dataset store for reading (a run directory holding one is accepted too)."""
+    from prt_torch.rundir import RunDir
+
     p = Path(path)
-    if p.is_dir() and not (p / "zarr.json").exists() and (p / "dataset.zarr").is_dir():
-        p = p / "dataset.zarr"
+    if p.is_dir() and not (p / "zarr.json").exists() and RunDir(p).dataset_path.is_dir():
+        p = RunDir(p).dataset_path
     if not p.exists():
         raise PrtError(f"dataset not found: {p}")
     return BakedDataset(p)

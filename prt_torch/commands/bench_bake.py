@@ -42,8 +42,8 @@ def run(args: argparse.Namespace) -> int:
 
     from prt_torch.bake.directions import rotated_frames, world_directions
     from prt_torch.bake.embree import RayScene
-    from prt_torch.bake.frame import RaySet
-    from prt_torch.bake.frames import local_frames
+    from prt_torch.bake.trace import RaySet
+    from prt_torch.rig.vertex_frames import vertex_frames
     from prt_torch.bake.plan import make_plan
     from prt_torch.bake.runner import bake_block, block_tasks, prepare, run_bake
     from prt_torch.bake.store import open_dataset
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
 
         # -- raw: every frame's exact rays, prepared beforehand; only the Embree calls are timed --------
         pos_all, nrm_all = ch.skin_mesh(plan.skin)
-        fr_all = local_frames(nrm_all, plan.skin, ds.cluster, ds.cluster_axis, ds.cluster_bone)
+        fr_all = vertex_frames(nrm_all, plan.skin, ds.cluster, ds.cluster_axis, ds.cluster_bone)
         rays = RaySet.make(args.rays, args.order, V, 0)
         offset = float(ds.attrs["bake"]["ray_offset_world"])
         block = max(1, int(ds.attrs["bake"]["vertex_chunk_rays"]) // args.rays)

@@ -9,7 +9,7 @@ order 4, MLP model) with an 8-term RPO (``phong``):
   interleaved frame by frame; median over ``--frames``; the fastest is ``fps``;
   then the fused graph with spinning ORT threads (``fused_spin``, a second player) in
   alternating blocks against the non-spinning one (``fused_blocks``);
-* (a) ray tracing the same frames' visibility with Embree (``prt_torch.bake.frame.bake_frame``, the
+* (a) ray tracing the same frames' visibility with Embree (``prt_torch.bake.trace.trace_frame``, the
   bake's per-frame path, ``--rays`` 512 by default as in the bake config) and shading it: ``speedup_vs_raytrace``;
 * (b) the model's bytes (ONNX initializers + RPO tensors) over the machine's measured copy bandwidth
   (large ``numpy.copyto``): ``bandwidth_fraction = stream time / frame time`` (1.0 = the frame costs
@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
 
     # -- (a) Embree ray tracing of the same frames + shading -----------------------------------
     from prt_torch.bake.embree import ray_offset
-    from prt_torch.bake.frame import RaySet, bake_frame
+    from prt_torch.bake.trace import RaySet, trace_frame
 
     ds_attrs = _dataset_attrs(run_dir)
     n_rays = int(args.rays or ds_attrs.get("n_rays") or 128)
@@ -208,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
             loc = locals_[(j * 7) % n_clip:(j * 7) % n_clip + 1]
             t0 = time.perf_counter()
             state = player.pose(loc)
-            res = bake_frame(state.positions_vx3(0), state.frames_vx33()[0], faces, rays, offset)
+            res = trace_frame(state.positions_vx3(0), state.frames_vx33()[0], faces, rays, offset)
             player.shade(state, visibility=res.visibility[None], checked=False)
             rt.append(time.perf_counter() - t0)
             t0 = time.perf_counter()

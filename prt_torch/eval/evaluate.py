@@ -5,7 +5,7 @@ For every kind (and the ``noshadow`` baseline: unoccluded hemisphere visibility)
 ``transfer_rel_err`` and ``transfer_err`` (seed 000 section 6, hemisphere about the normal),
 ``psnr_diffuse``/``psnr_glossy`` and ``rmse_diffuse``/``rmse_glossy`` (relative RMSE) of shaded
 radiance averaged over the environment lights, per light in ``per_light``, and ``jitter``
-(per clip, frame-to-frame, see :func:`prt_torch.eval.metrics.jitter`).
+(per clip, frame-to-frame, see :func:`prt_torch.metrics.jitter`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError
-from prt_torch.eval import metrics as M
+from prt_torch import metrics as M
 from prt_torch.eval.shading import (
     default_lights,
     lambert_rpo,
@@ -29,7 +29,7 @@ from prt_torch.eval.shading import (
 )
 from prt_torch.fit.data import SplitData, load_split
 from prt_torch.models import KINDS, load_metadata, load_model
-from prt_torch.reduce.storage import storage_table
+from prt_torch.models.storage import storage_table
 
 
 @dataclass

@@ -46,7 +46,7 @@ def check_parity(module, onnx_path: str | os.PathLike[str], inputs: Mapping[str,
     """
     import torch
 
-    from prt_torch.player.session import OrtGraph
+    from prt_torch.runtime.session import OrtGraph
 
     graph = OrtGraph(onnx_path, threads=threads)
     feeds = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in inputs.items()}

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from prt_torch.errors import PrtError, check
-from prt_torch.eval.metrics import vis_rel_err
+from prt_torch.metrics import vis_rel_err
 from prt_torch.fit.config import TrainConfig
 from prt_torch.fit.data import DatasetInfo, SplitData, dataset_info, load_split
 from prt_torch.fit.folds import blocked_folds

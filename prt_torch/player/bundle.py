@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError, check
-from prt_torch.player.session import OrtGraph
+from prt_torch.runtime.session import OrtGraph
 
 EXPORT_JSON = "export.json"
 FRAMES_FILE = "frames.npz"

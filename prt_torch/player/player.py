@@ -33,7 +33,7 @@ from prt_torch.errors import PrtError, check
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
 from prt_torch.player.posing import PoseBatch, Poser
-from prt_torch.player.session import OrtGraph
+from prt_torch.runtime.session import OrtGraph
 from prt_torch.player.timing import FrameTimer
 from prt_torch.player.tonemap import ToneMap, auto_tonemap
 

@@ -2,7 +2,7 @@
 
 Computes for a batch of local joint transforms exactly what the library's reference functions
 compute - FK (:func:`prt_torch.rig.skeleton.forward_kinematics`), LBS
-(:func:`prt_torch.rig.skinning.skin`), local vertex frames (:func:`prt_torch.bake.frames.local_frames`),
+(:func:`prt_torch.rig.skinning.skin`), local vertex frames (:func:`prt_torch.rig.vertex_frames.vertex_frames`),
 pose features (:func:`prt_torch.rig.features.pose_features`) - but laid out as ``(B, 3, V)`` /
 ``(B, 9, V)`` rows so that every step is a small GEMM or an elementwise op on contiguous
 V-long rows (tests check it against the reference functions). numpy only.
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prt_torch.errors import PrtError, check
+from prt_torch.rig.vertex_frames import dot3, fallback_axes, vertex_frames_soa
 
 
 @dataclass
@@ -47,11 +48,10 @@ class Poser:
     Args:
         character: a :class:`prt_torch.rig.Character`.
         cluster: ``(V,)`` cluster labels; cluster_axis: ``(Kc, 3)``; cluster_bone: ``(Kc,)`` (the
-            dataset's frame data, as in :func:`prt_torch.bake.frames.local_frames`).
+            dataset's frame data, as in :func:`prt_torch.rig.vertex_frames.vertex_frames`).
     """
 
     def __init__(self, character, cluster: np.ndarray, cluster_axis: np.ndarray, cluster_bone: np.ndarray) -> None:
-        from prt_torch.bake.frames import FALLBACK_BELOW, fallback_axes
 
         self.character = character
         v = character.num_vertices
@@ -65,7 +65,6 @@ class Poser:
         self.axes = axes
         self.fallback = fallback_axes(axes)
         self.bones = bones
-        self.fallback_below = np.float32(FALLBACK_BELOW)
         self.w_t = np.ascontiguousarray(character.dense_weights.T, dtype=np.float32)  # (J, V)
         self.rest = np.ascontiguousarray(character.rest_vertices.T, dtype=np.float32)  # (3, V)
         self.rest_n = np.ascontiguousarray(character.rest_normals.T, dtype=np.float32)
@@ -121,40 +120,7 @@ class Poser:
             mul(bm[:, :, j], self.rest_n[j], out=s3)
             add(nrm, s3, out=nrm)
         _normalize(nrm, s1, s3)
-        # cluster axes carried by their bones (Kc of them, float64), gathered per vertex in one take
-        rot = skin[:, self.bones, :3, :3]  # (B, Kc, 3, 3)
-        ap = np.einsum("bkij,mkj->bmik", rot, self._axes2)  # (B, 2, 3, Kc): [axis; fallback]
-        ap /= np.maximum(np.sqrt((ap * ap).sum(axis=2, keepdims=True)), 1e-12)
-        ap = np.take(ap.astype(np.float32), self.labels, axis=3)  # (B, 2, 3, V)
-        a, p = ap[:, 0], ap[:, 1]
-        # tangents of both axes: x - (x . n) n, in place
-        for x in (a, p):
-            _dot(x, nrm, s1, s3)
-            mul(nrm, s1[:, None], out=s3)
-            x -= s3
-        la = _dot(a, a, s1, s3)
-        np.sqrt(la, out=la)
-        # fallback weight w = clip(1 - |ta| / FALLBACK_BELOW, 0, 1): t = ta + w tp
-        mul(la, -1.0 / self.fallback_below, out=la)
-        la += 1.0
-        np.clip(la, 0.0, 1.0, out=la)
-        mul(p, la[:, None], out=p)
-        t = add(a, p, out=a)
-        lt = np.sqrt(_dot(t, t, s1, s3))
-        if (lt < 1e-6).any():  # measure-zero coincidence: use the reference implementation there
-            t = self._degenerate(t, nrm, lt)
-            lt = np.sqrt(_dot(t, t, s1, s3))
-        frames = np.empty((b, 9, v), np.float32)
-        np.divide(t, lt[:, None], out=frames[:, 0:3])
-        t = frames[:, 0:3]
-        # b = n x t
-        mul(nrm[:, 1], t[:, 2], out=frames[:, 3])
-        frames[:, 3] -= mul(nrm[:, 2], t[:, 1], out=s1)
-        mul(nrm[:, 2], t[:, 0], out=frames[:, 4])
-        frames[:, 4] -= mul(nrm[:, 0], t[:, 2], out=s1)
-        mul(nrm[:, 0], t[:, 1], out=frames[:, 5])
-        frames[:, 5] -= mul(nrm[:, 1], t[:, 0], out=s1)
-        frames[:, 6:9] = nrm
+        frames = vertex_frames_soa(nrm, skin[:, self.bones, :3, :3], self.labels, self._axes2, s1, s3)
         view = np.subtract(np.asarray(eye, dtype=np.float32).reshape(1, 3, 1), pos)
         _normalize(view, s1, s3)
         if features is None:
@@ -168,26 +134,10 @@ class Poser:
                              np.empty((b, 3, self.n_vertices), np.float32))
         return self._buffers
 
-    @staticmethod
-    def _degenerate(t: np.ndarray, nrm: np.ndarray, lt: np.ndarray) -> np.ndarray:
-        t = t.copy()
-        bi, vi = np.nonzero(lt < 1e-6)
-        n = nrm[bi, :, vi]  # (m, 3)
-        alt = np.cross(n, np.eye(3, dtype=np.float32)[np.argmin(np.abs(n), axis=-1)])
-        t[bi, :, vi] = alt
-        return t
-
-
-def _dot(a: np.ndarray, b: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
-    """``out (B, V) = sum_i a[:, i] * b[:, i]`` for ``(B, 3, V)`` arrays (``tmp (B, 3, V)`` scratch)."""
-    np.multiply(a, b, out=tmp)
-    np.add(tmp[:, 0], tmp[:, 1], out=out)
-    return np.add(out, tmp[:, 2], out=out)
-
 
 def _normalize(x: np.ndarray, s1: np.ndarray, s3: np.ndarray) -> None:
     """Normalise the ``(B, 3, V)`` vectors ``x`` in place (lengths clamped at 1e-12)."""
-    n = _dot(x, x, s1, s3)
+    n = dot3(x, x, s1, s3)
     np.sqrt(n, out=n)
     np.maximum(n, 1e-12, out=n)
     np.divide(1.0, n, out=n)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from prt_torch.bake.frames import local_frames
+from prt_torch.rig.vertex_frames import vertex_frames
 from prt_torch.bake.store import open_dataset
 
 
@@ -27,5 +27,5 @@ def test_small_dataset_contract(small_dataset: Path) -> None:
     ch = ds.character()
     poses = ch.pose("wave", fps=10.0)
     _, nrm = ch.skin_mesh(poses)
-    rebuilt = local_frames(nrm, poses.skin, ds.cluster, ds.cluster_axis, ds.cluster_bone)
+    rebuilt = vertex_frames(nrm, poses.skin, ds.cluster, ds.cluster_axis, ds.cluster_bone)
     np.testing.assert_allclose(rebuilt, ds.frames[ds.heldout_mask], atol=1e-5)

@@ -11,7 +11,7 @@ from scipy.integrate import quad
 from scipy.special import eval_legendre
 
 from prt_torch.bake.embree import RayScene
-from prt_torch.bake.frame import RaySet, bake_frame
+from prt_torch.bake.trace import RaySet, trace_frame
 from prt_torch.sh.basis import sh_basis
 
 T_ORDER = 6
@@ -48,7 +48,7 @@ def test_open_plane_transfer_is_clamped_cosine(tilt: float) -> None:
     plane.apply_translation((0, 0, -0.5))
     plane.apply_transform(trimesh.transformations.rotation_matrix(tilt, [0, 1, 0]))
     scene = RayScene(plane.vertices, plane.faces)
-    res = bake_frame(np.zeros((1, 3)), frame_from_normal(n)[None], None, RaySet.make(1024, 4, 1, seed=0),
+    res = trace_frame(np.zeros((1, 3)), frame_from_normal(n)[None], None, RaySet.make(1024, 4, 1, seed=0),
                      offset=1e-4, transfer_order=T_ORDER, scene=scene)
     ref = clamped_cos_sh(n, 0.0, 1.0, T_ORDER)
     assert ref[0] == pytest.approx(1 / math.sqrt(4 * math.pi))  # int cos/pi y00 = y00
@@ -63,7 +63,7 @@ def test_plane_under_sphere_transfer_loses_the_cap() -> None:
     sphere.apply_translation((0, 0, h))
     mesh = trimesh.util.concatenate([plane, sphere])
     c0 = math.sqrt(1 - (rho / h) ** 2)
-    res = bake_frame(np.zeros((1, 3)), np.eye(3)[None], None, RaySet.make(4096, 4, 1, seed=0), offset=1e-4,
+    res = trace_frame(np.zeros((1, 3)), np.eye(3)[None], None, RaySet.make(4096, 4, 1, seed=0), offset=1e-4,
                      transfer_order=T_ORDER, scene=RayScene(mesh.vertices, mesh.faces))
     ref = clamped_cos_sh(np.array([0.0, 0.0, 1.0]), 0.0, c0, T_ORDER)
     np.testing.assert_allclose(res.transfer[0], ref, atol=4e-3)
@@ -85,11 +85,11 @@ def plane_and_ball() -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
 def test_bounces_vanish_with_albedo_and_stay_below_direct(plane_and_ball: tuple) -> None:
     v, f, frames, _, _ = plane_and_ball
     rays = RaySet.make(256, 4, len(v), seed=1)
-    direct = bake_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER).transfer
-    faint = bake_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER, bounces=2, albedo=1e-6).transfer
+    direct = trace_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER).transfer
+    faint = trace_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER, bounces=2, albedo=1e-6).transfer
     np.testing.assert_allclose(faint, direct, atol=1e-5)
-    one = bake_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER, bounces=1, albedo=0.8).transfer
-    two = bake_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER, bounces=2, albedo=0.8).transfer
+    one = trace_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER, bounces=1, albedo=0.8).transfer
+    two = trace_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER, bounces=2, albedo=0.8).transfer
     b1 = one[:, 0] - direct[:, 0]
     b2 = two[:, 0] - one[:, 0]
     assert np.all(b1 >= -1e-6) and np.all(b2 >= -1e-6)  # bounce energy (DC) is never negative
@@ -110,8 +110,8 @@ def test_first_bounce_matches_exact_hit_point_gather(plane_and_ball: tuple) -> N
     albedo = 0.7
     n_rays = 512
     rays = RaySet.make(n_rays, 4, len(v), seed=2)
-    direct = bake_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER).transfer
-    one = bake_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER, bounces=1, albedo=albedo).transfer
+    direct = trace_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER).transfer
+    one = trace_frame(v, frames, f, rays, offset=1e-4, transfer_order=T_ORDER, bounces=1, albedo=albedo).transfer
     origin = 220
     assert np.allclose(v[origin], 0)
     bounce = one[origin] - direct[origin]
@@ -129,7 +129,7 @@ def test_first_bounce_matches_exact_hit_point_gather(plane_and_ball: tuple) -> N
     scene = RayScene(v, f)
     ref = np.zeros(T_ORDER * T_ORDER)
     fine = RaySet.make(1024, 4, len(q), seed=3)
-    t0_q = bake_frame(q, np.stack([frame_from_normal(n) for n in nq]), None, fine, offset=1e-3,
+    t0_q = trace_frame(q, np.stack([frame_from_normal(n) for n in nq]), None, fine, offset=1e-3,
                       transfer_order=T_ORDER, scene=scene).transfer
     ref = ((2.0 / n_rays) * albedo * d[hit, 2]) @ t0_q
     assert bounce[0] > 0

@@ -11,7 +11,7 @@ import trimesh
 from scipy.special import eval_legendre
 
 from prt_torch.bake.embree import RayScene
-from prt_torch.bake.frame import RaySet, bake_frame
+from prt_torch.bake.trace import RaySet, trace_frame
 from prt_torch.bake.visibility import project_visibility, projection_table, rotate_sh_z
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import sh_basis
@@ -66,7 +66,7 @@ def test_open_plane_sees_hemisphere_indicator(plane_mesh: trimesh.Trimesh) -> No
     pts = np.c_[rng.uniform(-5, 5, (6, 2)), np.zeros(6)]
     frames = np.stack([frame_about_z(a) for a in rng.uniform(0, 2 * math.pi, 6)])
     rays = RaySet.make(512, ORDER, 6, seed=0)
-    vis = bake_frame(pts, frames, None, rays, offset=1e-4, scene=scene).visibility
+    vis = trace_frame(pts, frames, None, rays, offset=1e-4, scene=scene).visibility
     ref = cap_sh(np.array([0.0, 0.0, 1.0]), 0.0, ORDER)
     # every ray is visible: the only error is the quadrature error of the low-discrepancy set, far
     # below the plain Monte Carlo error 2 pi max|y| / 2 / sqrt(512) ~ 0.08 of a 0/1 integrand
@@ -88,7 +88,7 @@ def test_plane_under_sphere_loses_cap(plane_mesh: trimesh.Trimesh, tilt: float) 
     frame = frame_about_z(1.1)
     n_rays = 2048
     rays = RaySet.make(n_rays, ORDER, 1, seed=5)
-    vis = bake_frame(np.zeros((1, 3)), frame[None], None, rays, offset=1e-5, scene=scene).visibility[0]
+    vis = trace_frame(np.zeros((1, 3)), frame[None], None, rays, offset=1e-5, scene=scene).visibility[0]
     axis_local = frame @ axis
     ref = cap_sh(np.array([0.0, 0.0, 1.0]), 0.0, ORDER) - cap_sh(axis_local, c0, ORDER)
     cap_solid_angle = 2 * math.pi * (1 - c0)
@@ -114,8 +114,8 @@ def test_512_rays_converge_to_8192_within_mc_error(plane_mesh: trimesh.Trimesh) 
     n = 64
     pts = np.c_[rng.uniform(-2, 2, (n, 2)), np.zeros(n)]
     frames = np.stack([frame_about_z(a) for a in rng.uniform(0, 2 * math.pi, n)])
-    lo = bake_frame(pts, frames, None, RaySet.make(512, ORDER, n, seed=1), offset=1e-4, scene=scene).visibility
-    hi = bake_frame(pts, frames, None, RaySet.make(8192, ORDER, n, seed=2), offset=1e-4, scene=scene).visibility
+    lo = trace_frame(pts, frames, None, RaySet.make(512, ORDER, n, seed=1), offset=1e-4, scene=scene).visibility
+    hi = trace_frame(pts, frames, None, RaySet.make(8192, ORDER, n, seed=2), offset=1e-4, scene=scene).visibility
     # plain MC standard error of a 0/1 integrand, bounded by its worst case: 2 pi * max|y| * 0.5 / sqrt(R)
     ymax = np.abs(sh_basis(_unit(20000), ORDER)).max(axis=0)
     sigma = 2 * math.pi * ymax * 0.5 / math.sqrt(512)
@@ -172,11 +172,11 @@ def test_bad_inputs_raise_prt_error(plane_mesh: trimesh.Trimesh) -> None:
     bad = pts.copy()
     bad[1, 0] = np.nan
     with pytest.raises(PrtError, match="NaN"):
-        bake_frame(bad, frames, None, rays, offset=1e-4, scene=scene)
+        trace_frame(bad, frames, None, rays, offset=1e-4, scene=scene)
     with pytest.raises(PrtError, match="shape"):
-        bake_frame(pts[:, :2], frames, None, rays, offset=1e-4, scene=scene)
+        trace_frame(pts[:, :2], frames, None, rays, offset=1e-4, scene=scene)
     with pytest.raises(PrtError, match="vertices"):
-        bake_frame(np.zeros((3, 3)), np.stack([np.eye(3)] * 3), None, rays, offset=1e-4, scene=scene)
+        trace_frame(np.zeros((3, 3)), np.stack([np.eye(3)] * 3), None, rays, offset=1e-4, scene=scene)
     with pytest.raises(PrtError, match="NaN"):
         RayScene(np.full((3, 3), np.nan), np.array([[0, 1, 2]]))
     with pytest.raises(PrtError, match="faces"):

@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 import torch
 
-from prt_torch.eval.metrics import vis_rel_err
+from prt_torch.metrics import vis_rel_err
 from prt_torch.fit.config import TrainConfig
 from prt_torch.fit.data import dataset_info, load_split
 from prt_torch.fit.train import fit_ridge_kind, predict, reduce_training, train_dataset
 from prt_torch.models import KINDS, load_metadata, load_model
-from prt_torch.reduce.storage import compact_floats, storage_table
+from prt_torch.models.storage import compact_floats, storage_table
 
 
 @pytest.fixture(scope="module")

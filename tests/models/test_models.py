@@ -101,7 +101,7 @@ def test_bad_inputs_raise(small_run: Path, tmp_path: Path) -> None:
 def test_global_output_variant_trains_loads_and_counts(synthetic_dataset: Path, tmp_path: Path) -> None:
     from prt_torch.fit.config import TrainConfig
     from prt_torch.fit.train import train_dataset
-    from prt_torch.reduce.storage import compact_floats, state_bytes
+    from prt_torch.models.storage import compact_floats, state_bytes
 
     train_dataset(synthetic_dataset, tmp_path, TrainConfig(kinds=["linear"], output_pca="global", alphas=[1.0]))
     m = load_model(tmp_path, "linear")

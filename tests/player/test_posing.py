@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prt_torch.bake.frames import cluster_axes, cluster_bones, local_frames
+from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, vertex_frames
 from prt_torch.errors import PrtError
 from prt_torch.player.lighting import hemisphere_visibility, lighting_from_sh, sinc_window
 from prt_torch.player.posing import Poser
@@ -30,7 +30,7 @@ def test_poser_matches_reference_fk_lbs_frames_features(character) -> None:
     pb = poser(clip.local[idx], eye)
     ref = ch.pose(clip)
     pos, nrm = ch.skin_mesh(ref.skin[idx])
-    frames = local_frames(nrm, ref.skin[idx], labels, axes, bones)
+    frames = vertex_frames(nrm, ref.skin[idx], labels, axes, bones)
     np.testing.assert_allclose(pb.positions.transpose(0, 2, 1), pos, atol=2e-5)
     np.testing.assert_allclose(pb.normals.transpose(0, 2, 1), nrm, atol=2e-5)
     np.testing.assert_allclose(pb.frames_vx33(), frames, atol=2e-4)

@@ -12,6 +12,11 @@ fixed axis ``p`` perpendicular to ``a`` (carried by the same bone) is blended in
 ``t ~ t_a + w t_p`` with ``w = clip(1 - |t_a| / FALLBACK_BELOW, 0, 1)``; ``w = 0`` (pure PCA
 tangent) wherever ``|t_a| >= FALLBACK_BELOW``.
 
+Two implementations of the one rule, tested against each other: :func:`vertex_frames` (the
+reference: float64, ``(..., V, 3, 3)``, used by the bake) and :func:`vertex_frames_soa` (float32,
+vertex-last ``(B, 9, V)`` rows with preallocated scratch, the player's per-frame fast path). Both use
+:data:`FALLBACK_BELOW` and :data:`DEGENERATE_BELOW`.
+
 This module must not import torch: the player rebuilds frames with it every frame, from the
 dataset's ``cluster (V,)``, ``cluster_axis (Kc, 3)`` and ``cluster_bone (Kc,)``.
 """
@@ -26,6 +31,9 @@ from prt_torch.errors import PrtError
 
 #: below this tangent-plane length of the PCA axis the fallback axis is blended in
 FALLBACK_BELOW = 0.3
+
+#: a blended tangent shorter than this is degenerate (a measure-zero coincidence): any perpendicular is used
+DEGENERATE_BELOW = 1e-6
 
 #: mean shift is fitted on at most this many vertices (a seeded subsample); all vertices are then labelled
 FIT_SAMPLES = 1000
@@ -156,7 +164,7 @@ def fallback_axes(axes: np.ndarray) -> np.ndarray:
     return p / np.linalg.norm(p, axis=1, keepdims=True)
 
 
-def local_frames(
+def vertex_frames(
     normals: np.ndarray,
     skin: np.ndarray,
     labels: np.ndarray,
@@ -203,7 +211,7 @@ def local_frames(
     w = np.clip(1.0 - la / FALLBACK_BELOW, 0.0, 1.0)
     t = ta + w * tp
     lt = np.linalg.norm(t, axis=-1, keepdims=True)
-    bad = lt[..., 0] < 1e-9
+    bad = lt[..., 0] < DEGENERATE_BELOW
     if bad.any():  # a measure-zero coincidence: any perpendicular will do
         alt = np.cross(n[bad], np.eye(3)[np.argmin(np.abs(n[bad]), axis=-1)])
         t[bad] = alt
@@ -211,6 +219,66 @@ def local_frames(
     t = t / lt
     b = np.cross(n, t)
     return np.stack([t, b, n], axis=-2).astype(np.float32)
+
+
+def vertex_frames_soa(nrm: np.ndarray, rot: np.ndarray, labels: np.ndarray, axes2: np.ndarray,
+                      s1: np.ndarray, s3: np.ndarray) -> np.ndarray:
+    """The rule of :func:`vertex_frames` in float32, vertex-last (the player's fast path).
+
+    Args:
+        nrm: ``(B, 3, V)`` float32 unit posed normals.
+        rot: ``(B, Kc, 3, 3)`` rotations of each cluster's dominant bone (float64).
+        labels: ``(V,)`` intp cluster of each vertex.
+        axes2: ``(2, Kc, 3)`` float64 rest-pose cluster axes and their :func:`fallback_axes`.
+        s1, s3: ``(B, V)`` and ``(B, 3, V)`` float32 scratch buffers (overwritten).
+
+    Returns:
+        ``(B, 9, V)`` float32, entry ``3i + j`` = ``F[i, j]``, rows ``(t, b, n)``.
+    """
+    mul, add = np.multiply, np.add
+    b, _, v = nrm.shape
+    ap = np.einsum("bkij,mkj->bmik", rot, axes2)  # (B, 2, 3, Kc): [axis; fallback] carried by the bones
+    ap /= np.maximum(np.sqrt((ap * ap).sum(axis=2, keepdims=True)), 1e-12)
+    ap = np.take(ap.astype(np.float32), labels, axis=3)  # (B, 2, 3, V)
+    a, p = ap[:, 0], ap[:, 1]
+    for x in (a, p):  # tangents of both axes: x - (x . n) n, in place
+        dot3(x, nrm, s1, s3)
+        mul(nrm, s1[:, None], out=s3)
+        x -= s3
+    la = dot3(a, a, s1, s3)
+    np.sqrt(la, out=la)
+    # fallback weight w = clip(1 - |ta| / FALLBACK_BELOW, 0, 1): t = ta + w tp
+    mul(la, -1.0 / np.float32(FALLBACK_BELOW), out=la)
+    la += 1.0
+    np.clip(la, 0.0, 1.0, out=la)
+    mul(p, la[:, None], out=p)
+    t = add(a, p, out=a)
+    lt = np.sqrt(dot3(t, t, s1, s3))
+    if (lt < DEGENERATE_BELOW).any():  # measure-zero coincidence: any perpendicular, as the reference does
+        t = t.copy()
+        bi, vi = np.nonzero(lt < DEGENERATE_BELOW)
+        n = nrm[bi, :, vi]  # (m, 3)
+        t[bi, :, vi] = np.cross(n, np.eye(3, dtype=np.float32)[np.argmin(np.abs(n), axis=-1)])
+        lt = np.sqrt(dot3(t, t, s1, s3))
+    frames = np.empty((b, 9, v), np.float32)
+    np.divide(t, lt[:, None], out=frames[:, 0:3])
+    t = frames[:, 0:3]
+    # b = n x t
+    mul(nrm[:, 1], t[:, 2], out=frames[:, 3])
+    frames[:, 3] -= mul(nrm[:, 2], t[:, 1], out=s1)
+    mul(nrm[:, 2], t[:, 0], out=frames[:, 4])
+    frames[:, 4] -= mul(nrm[:, 0], t[:, 2], out=s1)
+    mul(nrm[:, 0], t[:, 1], out=frames[:, 5])
+    frames[:, 5] -= mul(nrm[:, 1], t[:, 0], out=s1)
+    frames[:, 6:9] = nrm
+    return frames
+
+
+def dot3(a: np.ndarray, b: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
+    """``out (B, V) = sum_i a[:, i] * b[:, i]`` for ``(B, 3, V)`` arrays (``tmp (B, 3, V)`` scratch)."""
+    np.multiply(a, b, out=tmp)
+    np.add(tmp[:, 0], tmp[:, 1], out=out)
+    return np.add(out, tmp[:, 2], out=out)
 
 
 def _normalise(x: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ import pytest
 from onnx import TensorProto, helper
 
 from prt_torch.errors import PrtError
-from prt_torch.player.session import OrtGraph
+from prt_torch.runtime.session import OrtGraph
 
 
 @pytest.fixture(scope="module")

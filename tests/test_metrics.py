@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from prt_torch.errors import PrtError
-from prt_torch.eval.metrics import jitter, psnr, rel_rmse, transfer_error, vis_rel_err
+from prt_torch.metrics import jitter, psnr, rel_rmse, transfer_error, vis_rel_err
 from prt_torch.eval.shading import lambert_rpo, phong_rpo, shade, shading_vectors
 from prt_torch.sh.basis import sh_basis
 from prt_torch.sh.quadrature import hemisphere_directions, sphere_quadrature

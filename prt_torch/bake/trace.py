@@ -57,7 +57,7 @@ class FrameResult:
     n_rays: int
 
 
-def bake_frame(
+def trace_frame(
     positions: np.ndarray,
     frames: np.ndarray,
     faces: np.ndarray,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from prt_torch.bake.frames import cluster_axes, cluster_bones, cluster_vertices, local_frames
+from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.errors import PrtError
 
 
@@ -81,7 +81,7 @@ def _posed_arm(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
 def test_frames_orthonormal_right_handed_and_normal_row() -> None:
     v, nrm, w, mats = _posed_arm(np.linspace(0, 1.2, 5))
     labels = cluster_vertices(w, bandwidth=0.5)
-    fr = local_frames(nrm, mats, labels, cluster_axes(v, labels), cluster_bones(w, labels))
+    fr = vertex_frames(nrm, mats, labels, cluster_axes(v, labels), cluster_bones(w, labels))
     assert fr.shape == (5, len(v), 3, 3) and fr.dtype == np.float32
     eye = np.einsum("...ij,...kj->...ik", fr.astype(np.float64), fr.astype(np.float64))
     np.testing.assert_allclose(eye, np.broadcast_to(np.eye(3), eye.shape), atol=1e-5)
@@ -95,9 +95,9 @@ def test_frames_rotate_with_a_rigid_motion() -> None:
     labels = cluster_vertices(w, bandwidth=0.5)
     axes, bones = cluster_axes(v, labels), cluster_bones(w, labels)
     q = Rotation.from_euler("xyz", [0.3, -1.1, 2.0]).as_matrix()
-    fr = local_frames(nrm, mats, labels, axes, bones).astype(np.float64)
+    fr = vertex_frames(nrm, mats, labels, axes, bones).astype(np.float64)
     rot_q = np.einsum("ab,fjbc->fjac", q, mats[..., :3, :3])
-    fr_q = local_frames(nrm @ q.T, rot_q, labels, axes, bones).astype(np.float64)
+    fr_q = vertex_frames(nrm @ q.T, rot_q, labels, axes, bones).astype(np.float64)
     np.testing.assert_allclose(fr_q, fr @ q.T, atol=2e-5)
 
 
@@ -110,7 +110,7 @@ def test_frames_are_temporally_coherent() -> None:
     angles = np.deg2rad(np.arange(0, 90, 2.0))
     v, nrm, w, mats = _posed_arm(angles)
     labels = cluster_vertices(w, bandwidth=0.5)
-    fr = local_frames(nrm, mats, labels, cluster_axes(v, labels), cluster_bones(w, labels)).astype(np.float64)
+    fr = vertex_frames(nrm, mats, labels, cluster_axes(v, labels), cluster_bones(w, labels)).astype(np.float64)
     cos = np.sum(fr[1:, :, 0] * fr[:-1, :, 0], axis=-1)
     assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() <= 10.0
 
@@ -119,16 +119,16 @@ def test_single_frame_and_bad_inputs() -> None:
     v, nrm, w, mats = _posed_arm(np.array([0.3]))
     labels = cluster_vertices(w, bandwidth=0.5)
     axes, bones = cluster_axes(v, labels), cluster_bones(w, labels)
-    one = local_frames(nrm[0], mats[0], labels, axes, bones)
-    np.testing.assert_array_equal(one, local_frames(nrm, mats, labels, axes, bones)[0])
+    one = vertex_frames(nrm[0], mats[0], labels, axes, bones)
+    np.testing.assert_array_equal(one, vertex_frames(nrm, mats, labels, axes, bones)[0])
     bad = nrm[0].copy()
     bad[3] = np.nan
     with pytest.raises(PrtError, match="NaN"):
-        local_frames(bad, mats[0], labels, axes, bones)
+        vertex_frames(bad, mats[0], labels, axes, bones)
     with pytest.raises(PrtError, match="labels"):
-        local_frames(nrm[0], mats[0], labels[:-1], axes, bones)
+        vertex_frames(nrm[0], mats[0], labels[:-1], axes, bones)
     with pytest.raises(PrtError, match="skin"):
-        local_frames(nrm[0], mats[0, :, :2, :2], labels, axes, bones)
+        vertex_frames(nrm[0], mats[0, :, :2, :2], labels, axes, bones)
     with pytest.raises(PrtError, match="weights"):
         cluster_vertices(np.full((4, 2), np.nan))
 
@@ -136,7 +136,7 @@ def test_single_frame_and_bad_inputs() -> None:
 def test_frames_module_does_not_import_torch() -> None:
     import subprocess
 
-    code = "import sys, prt_torch.bake.frames; assert 'torch' not in sys.modules"
+    code = "import sys, prt_torch.rig.vertex_frames; assert 'torch' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -149,7 +149,7 @@ def test_builtin_walk_frames_are_coherent() -> None:
     by at most ``2 |da| + 2 |dn|``). (b) Stated angle: at least 99% of
     vertex steps turn the tangent by at most 20 degrees.
     """
-    from prt_torch.bake.frames import FALLBACK_BELOW
+    from prt_torch.rig.vertex_frames import FALLBACK_BELOW
     from prt_torch.rig.builtin import make_character
 
     ch = make_character(0.05)
@@ -159,7 +159,7 @@ def test_builtin_walk_frames_are_coherent() -> None:
     assert labels.max() + 1 >= 10  # roughly a part per bone, not a handful of blobs
     poses = ch.pose("walk")
     _, nrm = ch.skin_mesh(poses)
-    fr = local_frames(nrm, poses.skin, labels, axes, bones).astype(np.float64)
+    fr = vertex_frames(nrm, poses.skin, labels, axes, bones).astype(np.float64)
     t, n = fr[..., 0, :], fr[..., 2, :]
     turn = np.arccos(np.clip(np.sum(t[1:] * t[:-1], axis=-1), -1, 1))
     rot = poses.skin[:, bones, :3, :3][:, labels]  # (F, V, 3, 3) dominant-bone rotation per vertex

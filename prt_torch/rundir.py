@@ -1,0 +1,285 @@
+"""The run directory ``runs/NAME/``: the one owner of every file name in it (docs/DESIGN.md).
+
+No other module spells a run-directory file name; they ask a :class:`RunDir`::
+
+    run = RunDir("runs/demo")
+    ds = run.dataset()                  # BakedDataset: the only dataset reader
+    held = ds.split("heldout")          # SplitData of the done held-out frames
+    model = run.model("mlp")            # VisibilityModel (torch), run.model() = the default kind
+    meta = run.export_meta()            # export.json (PrtError naming `prt export` when missing)
+    if run.is_current("export", key): ...  # one up-to-date key per stage, in stages.json
+
+Layout (written by):
+
+========================================  =========================================================
+``dataset.zarr/``, ``character.npz``       ``prt bake`` (the store, the character)
+``models/<kind>.pt``, ``model.pt``,        ``prt train`` (one file per kind, the default kind's hard link,
+``model.json``, ``metrics.json``           metadata, training metrics)
+``report/``                                ``prt eval`` (``index.md``, ``index.html``, ``results.json``, plots)
+``visibility.onnx``, ``shading.onnx``,     ``prt export`` (graphs, RPO catalogue, vertex-frame data,
+``fused.onnx``, ``rpo/<name>.npz``,        metadata)
+``frames.npz``, ``export.json``
+``compare/``                               ``prt compare`` (``table.md``, ``index.html``, ``compare.json``,
+                                           ``strip.png``, ``psnr_vs_ms.png``)
+``heldout.mp4``, ``comparison.png``,       ``prt demo`` / ``prt play``
+``demo_metrics.json``, ``*.timings.json``
+``stages.json``                            every stage: its up-to-date key (``bake``, ``train``, ``export``)
+========================================  =========================================================
+
+Loading methods import their owners lazily (``bake.store``, ``rig.character``, ``models``), so that
+this module stays at the bottom of the layers and the player can use it without torch.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from prt_torch.errors import PrtError, check
+from prt_torch.io import atomic_write_json
+
+if TYPE_CHECKING:
+    from prt_torch.bake.store import BakedDataset
+    from prt_torch.models.visibility import VisibilityModel
+    from prt_torch.rig.character import Character
+
+#: pipeline stages with an up-to-date key in ``stages.json``
+STAGES = ("bake", "train", "export")
+#: the ONNX graphs of an export, by role
+GRAPHS = ("visibility", "shading", "fused")
+
+_DATASET = "dataset.zarr"
+_CHARACTER = "character.npz"
+_MODELS = "models"
+_DEFAULT_MODEL = "model.pt"
+_MODEL_JSON = "model.json"
+_METRICS_JSON = "metrics.json"
+_REPORT = "report"
+_RESULTS_JSON = "results.json"
+_EXPORT_JSON = "export.json"
+_FRAMES = "frames.npz"
+_RPO = "rpo"
+_COMPARE = "compare"
+_STAGES = "stages.json"
+_DEMO_VIDEO = "heldout.mp4"
+_DEMO_IMAGE = "comparison.png"
+_DEMO_METRICS = "demo_metrics.json"
+
+
+def stage_key(obj: Any) -> str:
+    """sha256 of ``obj`` as canonical JSON (sorted keys; paths and other objects by ``str``)."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """sha256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+class RunDir:
+    """A run directory (it need not exist yet: the bake creates it).
+
+    Args:
+        path: ``runs/NAME`` (a ``dataset.zarr`` path is accepted too and means its parent).
+    """
+
+    def __init__(self, path: str | os.PathLike[str] | RunDir) -> None:
+        p = Path(path.path if isinstance(path, RunDir) else path)
+        if p.name == _DATASET:
+            p = p.parent
+        self.path = p
+
+    @classmethod
+    def of(cls, run: str | os.PathLike[str] | RunDir) -> RunDir:
+        """``run`` itself when it is a :class:`RunDir`, else a new one."""
+        return run if isinstance(run, RunDir) else cls(run)
+
+    def __fspath__(self) -> str:
+        return os.fspath(self.path)
+
+    def __repr__(self) -> str:
+        return f"RunDir({str(self.path)!r})"
+
+    def __truediv__(self, other: str) -> Path:  # pragma: no cover - discouraged: use the named properties
+        raise TypeError("RunDir / name: use a named property of RunDir (it owns the file names)")
+
+    def require(self) -> RunDir:
+        """``self``; :class:`PrtError` when the directory does not exist."""
+        check(self.path.is_dir(), f"run directory not found: {self.path}")
+        return self
+
+    # -- bake ------------------------------------------------------------------------------------
+    @property
+    def dataset_path(self) -> Path:
+        """``dataset.zarr/``: the baked store (``prt_torch.bake.store``)."""
+        return self.path / _DATASET
+
+    @property
+    def character_path(self) -> Path:
+        """``character.npz``: the baked character."""
+        return self.path / _CHARACTER
+
+    def dataset(self) -> BakedDataset:
+        """The baked dataset (:class:`prt_torch.bake.store.BakedDataset`, the only dataset reader)."""
+        from prt_torch.bake.store import BakedDataset
+
+        if not self.dataset_path.exists():
+            raise PrtError(f"no dataset in {self.path} ({_DATASET} missing): run `prt bake CONFIG` first")
+        return BakedDataset(self.dataset_path)
+
+    def character(self, expect_hash: str | None = None) -> Character:
+        """The run's character; ``expect_hash``: its content hash must equal this."""
+        from prt_torch.rig.character import Character
+
+        if not self.character_path.is_file():
+            raise PrtError(f"no character in {self.path} ({_CHARACTER} missing): run `prt bake CONFIG` first")
+        ch = Character.load(self.character_path)
+        if expect_hash:
+            h = ch.content_hash()
+            check(h == expect_hash, f"{self.character_path} (hash {h[:12]}) is not the character this run was "
+                                    f"made for ({expect_hash[:12]})")
+        return ch
+
+    # -- train -----------------------------------------------------------------------------------
+    @property
+    def models_dir(self) -> Path:
+        return self.path / _MODELS
+
+    def model_path(self, kind: str | None = None) -> Path:
+        """``model.pt`` (the default kind) for ``kind=None``, else ``models/<kind>.pt``."""
+        if kind is None:
+            return self.path / _DEFAULT_MODEL
+        check(bool(kind) and "/" not in kind and kind[0] != ".", f"bad model kind {kind!r}")
+        return self.models_dir / f"{kind}.pt"
+
+    @property
+    def model_json(self) -> Path:
+        return self.path / _MODEL_JSON
+
+    @property
+    def metrics_json(self) -> Path:
+        return self.path / _METRICS_JSON
+
+    def model(self, kind: str | None = None) -> VisibilityModel:
+        """The trained model of ``kind`` (``None``: the default one). Needs torch."""
+        from prt_torch.models.visibility import load_model
+
+        return load_model(self, kind)
+
+    def model_meta(self) -> dict[str, Any]:
+        """``model.json``: conventions, dimensions, kinds, chosen hyper-parameters."""
+        if not self.model_json.is_file():
+            raise PrtError(f"model metadata not found: {self.model_json} (run `prt train CONFIG` first)")
+        return self.read_json(self.model_json)
+
+    # -- eval / compare ----------------------------------------------------------------------------
+    @property
+    def report_dir(self) -> Path:
+        return self.path / _REPORT
+
+    @property
+    def report_json(self) -> Path:
+        return self.report_dir / _RESULTS_JSON
+
+    @property
+    def compare_dir(self) -> Path:
+        return self.path / _COMPARE
+
+    # -- export ----------------------------------------------------------------------------------
+    @property
+    def export_json(self) -> Path:
+        return self.path / _EXPORT_JSON
+
+    @property
+    def frames_path(self) -> Path:
+        """``frames.npz``: cluster labels / axes / bones for the player's vertex frames."""
+        return self.path / _FRAMES
+
+    @property
+    def rpo_dir(self) -> Path:
+        return self.path / _RPO
+
+    def graph_path(self, graph: str) -> Path:
+        """``<graph>.onnx`` for ``graph`` in :data:`GRAPHS`."""
+        check(graph in GRAPHS, f"unknown graph {graph!r}: expected one of {list(GRAPHS)}")
+        return self.path / f"{graph}.onnx"
+
+    def rpo_path(self, name: str) -> Path:
+        """``rpo/<name>.npz``."""
+        check(bool(name) and "/" not in name and not name.startswith("."), f"bad BRDF name {name!r}")
+        return self.rpo_dir / f"{name}.npz"
+
+    def relative(self, path: Path) -> str:
+        """``path`` relative to the run directory, POSIX style (for metadata files)."""
+        return Path(path).relative_to(self.path).as_posix()
+
+    def export_meta(self) -> dict[str, Any]:
+        """``export.json``; :class:`PrtError` naming ``prt export`` when the run is not exported."""
+        check(self.path.is_dir(), f"run directory not found: {self.path}")
+        check(self.export_json.is_file(), f"{self.path} is not exported ({_EXPORT_JSON} missing): run `prt export "
+                                          f"{self.path}` first")
+        return self.read_json(self.export_json)
+
+    # -- demo / play -----------------------------------------------------------------------------
+    @property
+    def demo_video(self) -> Path:
+        return self.path / _DEMO_VIDEO
+
+    @property
+    def demo_image(self) -> Path:
+        return self.path / _DEMO_IMAGE
+
+    @property
+    def demo_metrics(self) -> Path:
+        return self.path / _DEMO_METRICS
+
+    def timings_path(self, video: str | os.PathLike[str]) -> Path:
+        """``<video stem>.timings.json`` next to a video (or in the run directory for a bare name)."""
+        v = Path(video)
+        return v.with_name(f"{v.stem}.timings.json")
+
+    # -- stage keys ------------------------------------------------------------------------------
+    @property
+    def stages_json(self) -> Path:
+        return self.path / _STAGES
+
+    def stage_keys(self) -> dict[str, str]:
+        """``{stage: key}`` of the finished stages (empty when none recorded)."""
+        if not self.stages_json.is_file():
+            return {}
+        data = self.read_json(self.stages_json)
+        return {k: str(v) for k, v in data.items() if k in STAGES}
+
+    def is_current(self, stage: str, key: str, outputs: tuple[Path, ...] = ()) -> bool:
+        """Whether ``stage`` last finished with ``key`` and all its ``outputs`` still exist."""
+        check(stage in STAGES, f"unknown stage {stage!r}: expected one of {list(STAGES)}")
+        return self.stage_keys().get(stage) == key and all(Path(p).exists() for p in outputs)
+
+    def mark_done(self, stage: str, key: str) -> None:
+        """Record that ``stage`` finished with ``key`` (atomically; later stages' keys are kept: each key
+        hashes its own inputs, so a stale later stage is recognised by its own key)."""
+        check(stage in STAGES, f"unknown stage {stage!r}: expected one of {list(STAGES)}")
+        keys = self.stage_keys()
+        keys[stage] = key
+        self.path.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(self.stages_json, keys)
+
+    # -- helpers ---------------------------------------------------------------------------------
+    @staticmethod
+    def read_json(path: Path) -> dict[str, Any]:
+        """A JSON object file; one-line :class:`PrtError` when it is unreadable or not an object."""
+        try:
+            data = json.loads(Path(path).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise PrtError(f"file not found: {path}") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise PrtError(f"{path}: not valid JSON ({type(exc).__name__})") from None
+        check(isinstance(data, dict), f"{path}: expected a JSON object")
+        return data
