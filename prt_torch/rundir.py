@@ -22,7 +22,8 @@ Layout (written by):
 ``compare/``                               ``prt compare`` (``table.md``, ``index.html``, ``compare.json``,
                                            ``strip.png``, ``psnr_vs_ms.png``)
 ``heldout.mp4``, ``comparison.png``,       ``prt demo`` / ``prt play``
-``demo_metrics.json``, ``*.timings.json``
+``demo_metrics.json``, ``*.timings.json``,
+``play_timings.json``
 ``stages.json``                            every stage: its up-to-date key (``bake``, ``train``, ``export``)
 ========================================  =========================================================
 
@@ -67,6 +68,7 @@ _STAGES = "stages.json"
 _DEMO_VIDEO = "heldout.mp4"
 _DEMO_IMAGE = "comparison.png"
 _DEMO_METRICS = "demo_metrics.json"
+_PLAY_TIMINGS = "play_timings.json"
 
 
 def stage_key(obj: Any) -> str:
@@ -239,6 +241,11 @@ class RunDir:
     @property
     def demo_metrics(self) -> Path:
         return self.path / _DEMO_METRICS
+
+    @property
+    def play_timings(self) -> Path:
+        """Frame timings of ``prt play`` without an output video."""
+        return self.path / _PLAY_TIMINGS
 
     def timings_path(self, video: str | os.PathLike[str]) -> Path:
         """``<video stem>.timings.json`` next to a video (or in the run directory for a bare name)."""

@@ -21,25 +21,25 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from prt_torch.bake.embree import ray_offset, require_embreex
-from prt_torch.bake.trace import RaySet, trace_frame
-from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
-    CHARACTER_FILE,
     CONVENTIONS,
     FORMAT_VERSION,
+    BakedDataset,
     check_compatible,
     create_store,
     library_versions,
+    open_for_writing,
     remove_partial_files,
 )
+from prt_torch.bake.trace import RaySet, trace_frame
 from prt_torch.errors import PrtError
+from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
+from prt_torch.rundir import RunDir
 
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
     from prt_torch.rig.character import Character
-
-DATASET_DIR = "dataset.zarr"
 
 
 @dataclass(frozen=True)
@@ -99,18 +99,12 @@ _CONTEXTS: dict[tuple[str, float], _Context] = {}
 
 
 def _context(dataset: str) -> _Context:
-    import zarr
-
-    from prt_torch.rig.character import Character
-
     key = (dataset, os.stat(Path(dataset) / "zarr.json").st_mtime)
     ctx = _CONTEXTS.get(key)
     if ctx is None:
-        g = zarr.open_group(dataset, mode="r+")
+        g = open_for_writing(Path(dataset))
         params = dict(g.attrs["bake"])
-        ch = Character.load(Path(dataset).parent / CHARACTER_FILE)
-        if ch.content_hash() != g.attrs["character_hash"]:
-            raise PrtError(f"{Path(dataset).parent / CHARACTER_FILE} does not match {dataset}")
+        ch = RunDir(dataset).character(expect_hash=str(g.attrs["character_hash"]))
         labels = np.asarray(g["cluster"][:])
         ctx = _Context(group=g, character=ch, dense_w=ch.dense_weights, labels=labels,
                        axes=np.asarray(g["cluster_axis"][:]), bones=np.asarray(g["cluster_bone"][:]),
@@ -216,23 +210,20 @@ def prepare(cfg: RunConfig, plan: BakePlan | None = None) -> tuple[Path, BakePla
 
     Nothing is written when an existing store or character file belongs to another bake.
     """
-    import zarr
-
     from prt_torch.rig.character import Character
 
     require_embreex()
     plan = make_plan(cfg) if plan is None else plan
-    out = cfg.out_dir.resolve()
-    path = out / DATASET_DIR
-    char_path = out / CHARACTER_FILE
+    run = RunDir(cfg.out_dir.resolve())
+    path = run.dataset_path
+    char_path = run.character_path
     attrs = _attrs(cfg, plan, ray_offset(plan.character.rest_vertices, cfg.bake.ray_offset))
     exists = path.exists()
     if exists:
         try:
-            existing = dict(zarr.open_group(str(path), mode="r").attrs)
-        except Exception as exc:
-            raise PrtError(f"{path} exists but is not a zarr dataset ({type(exc).__name__}); "
-                           "move it away or delete it") from None
+            existing = BakedDataset(path, validate=False).attrs
+        except PrtError:
+            raise PrtError(f"{path} exists but is not a zarr dataset; move it away or delete it") from None
         check_compatible(path, attrs, existing)
     if char_path.exists():
         try:
@@ -252,11 +243,9 @@ def prepare(cfg: RunConfig, plan: BakePlan | None = None) -> tuple[Path, BakePla
 
 def block_tasks(path: Path, plan: BakePlan) -> list[BlockTask]:
     """One task per chunk-aligned block of frames that is not completely done."""
-    import zarr
-
-    done_arr = zarr.open_group(str(path), mode="r")["done"]
-    done = np.asarray(done_arr[:], dtype=bool)
-    fpt = int(done_arr.chunks[0])
+    ds = BakedDataset(path)
+    done = ds.done
+    fpt = int(ds.array("done").chunks[0])
     tasks = []
     for f0 in range(0, plan.n_frames, fpt):
         f1 = min(plan.n_frames, f0 + fpt)
@@ -329,6 +318,9 @@ def run_bake(
             advance(st.frames, frames, rays, time.perf_counter() - t0)
             if on_block is not None:
                 on_block(st)
+    ds = BakedDataset(path)
+    if ds.complete:
+        RunDir(path).mark_done("bake", ds.key())
     return BakeResult(path=path, frames=frames, skipped=total - todo, rays=rays, seconds=time.perf_counter() - t0)
 
 

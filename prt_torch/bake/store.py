@@ -158,15 +158,19 @@ class BakedDataset:
     every access; use :meth:`array` for zarr slicing without reading everything.
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, validate: bool = True) -> None:
         import zarr
 
         self.path = Path(path)
+        if not self.path.exists():
+            raise PrtError(f"dataset not found: {self.path}")
         try:
             self._group = zarr.open_group(str(self.path), mode="r")
         except Exception as exc:
             raise PrtError(f"{self.path}: not a zarr dataset ({type(exc).__name__})") from None
         self.attrs: dict[str, Any] = dict(self._group.attrs)
+        if not validate:
+            return
         for name in ("pose", "visibility", "clip_id", "frame_index", "done", "cluster"):
             if name not in self._group:
                 raise PrtError(f"{self.path}: dataset has no '{name}' array")
@@ -310,6 +314,14 @@ class BakedDataset:
         ids = [self.clip_names.index(c) for c in self.splits[split]]
         return np.isin(self.clip_id, ids)
 
+    def key(self) -> str:
+        """The up-to-date key of this dataset's content: frame list, character, bake settings, done count."""
+        from prt_torch.rundir import stage_key
+
+        a = self.attrs
+        return stage_key({"fingerprint": a.get("frames_fingerprint"), "character_hash": a.get("character_hash"),
+                          "bake": a.get("bake"), "done": int(self.done.sum())})
+
     def split_rows(self, split: str) -> np.ndarray:
         """``(F_split,)`` int64 dataset rows of the DONE frames of ``split``, in stored order."""
         return np.flatnonzero(self.split_mask(split) & self.done)
@@ -389,6 +401,16 @@ def open_dataset(path: str | os.PathLike[str]) -> BakedDataset:
     if not p.exists():
         raise PrtError(f"dataset not found: {p}")
     return BakedDataset(p)
+
+
+def open_for_writing(path: Path) -> Any:
+    """The store's zarr group opened for the bake's block writes (``r+``; the bake runner only)."""
+    import zarr
+
+    try:
+        return zarr.open_group(str(path), mode="r+")
+    except Exception as exc:
+        raise PrtError(f"{path}: not a zarr dataset ({type(exc).__name__})") from None
 
 
 def remove_partial_files(path: Path) -> None:

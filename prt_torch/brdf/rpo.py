@@ -175,8 +175,8 @@ CATALOGUE: dict[str, type[BRDF] | object] = {
 
 
 def default_cache_dir() -> Path:
-    """``$PRT_CACHE`` or ``~/.cache/prt_torch``, plus ``/rpo``."""
-    return Path(os.environ.get("PRT_CACHE", Path.home() / ".cache" / "prt_torch")) / "rpo"
+    """``$PRT_CACHE`` or ``~/.cache/prt_torch``, plus ``/rpo_cache`` (built RPOs by name and settings)."""
+    return Path(os.environ.get("PRT_CACHE", Path.home() / ".cache" / "prt_torch")) / "rpo_cache"
 
 
 def builtin_brdf(name: str) -> BRDF:

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-HELP = "Bake ground-truth SH visibility (Embree) into runs/NAME/dataset.zarr; re-running resumes."
+HELP = "Bake ground-truth SH visibility (Embree) into the dataset of runs/NAME; re-running resumes."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -42,13 +42,13 @@ def run(args: argparse.Namespace) -> int:
 
     from prt_torch.bake.directions import rotated_frames, world_directions
     from prt_torch.bake.embree import RayScene
-    from prt_torch.bake.trace import RaySet
-    from prt_torch.rig.vertex_frames import vertex_frames
     from prt_torch.bake.plan import make_plan
     from prt_torch.bake.runner import bake_block, block_tasks, prepare, run_bake
     from prt_torch.bake.store import open_dataset
+    from prt_torch.bake.trace import RaySet
     from prt_torch.config import config_from_dict
     from prt_torch.errors import PrtError
+    from prt_torch.rig.vertex_frames import vertex_frames
 
     if args.frames < 1 or args.rays < 16 or args.rounds < 1:
         raise PrtError("bench bake needs --frames >= 1, --rays >= 16 and --rounds >= 1")

@@ -2,8 +2,8 @@
 
 Seed 003 Table 1 reports 14 h 32 min (MLP) vs 12 min (linear), a 73x ratio. Here every kind is
 fitted on the same reduced training data in one process (CV included, as ``prt train`` does), and
-the ratio MLP / linear is printed. The data: ``--dataset`` (a baked dataset.zarr, e.g.
-``runs/builtin/dataset.zarr``) or, by default, a fresh small bake of the built-in character.
+the ratio MLP / linear is printed. The data: ``--dataset`` (a baked dataset or a run directory holding
+one, e.g. ``runs/builtin``) or, by default, a fresh small bake of the built-in character.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ HELP = "Fit times of linear, quadratic and MLP models on the built-in training s
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--dataset", default=None, help="dataset.zarr (default: bake the built-in character small)")
+    parser.add_argument("--dataset", default=None, help="baked dataset or run directory (default: bake the built-in character small)")
     parser.add_argument("--config", default=None, help="run config whose train section to use (default: defaults)")
     parser.add_argument("--max-iter", type=int, default=None, help="override train.max_iter")
     parser.add_argument("--json", action="store_true", help="print a JSON object")
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 
     from prt_torch.config import load_config
     from prt_torch.fit.config import TrainConfig
-    from prt_torch.fit.data import dataset_info, load_split
+    from prt_torch.bake.store import open_dataset
     from prt_torch.fit.train import fit_mlp_kind, fit_ridge_kind, reduce_training
 
     console = Console(stderr=True)
@@ -57,8 +57,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             with console.status("baking the built-in character (small)"):
                 dataset = _small_bake(Path(tmp) / "run")
-        info = dataset_info(dataset)
-        train = load_split(dataset, "train")
+        info = open_dataset(dataset)
+        train = info.split("train")
         threads = torch.get_num_threads()
         torch.set_num_threads(max(cfg.threads, 1))
         try:

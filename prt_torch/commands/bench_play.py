@@ -194,8 +194,10 @@ def run(args: argparse.Namespace) -> int:
     # -- (a) Embree ray tracing of the same frames + shading -----------------------------------
     from prt_torch.bake.embree import ray_offset
     from prt_torch.bake.trace import RaySet, trace_frame
+    from prt_torch.rundir import RunDir
 
-    ds_attrs = _dataset_attrs(run_dir)
+    run = RunDir(run_dir)
+    ds_attrs = run.dataset().attrs if run.dataset_path.exists() else {}
     n_rays = int(args.rays or ds_attrs.get("n_rays") or 128)
     rel_offset = float((ds_attrs.get("bake") or {}).get("ray_offset", 1e-4))
     rays = RaySet.make(n_rays, player.order, player.bundle.n_vertices, seed=0)
@@ -224,11 +226,10 @@ def run(args: argparse.Namespace) -> int:
         bw = copy_bandwidth()
         gemm_flops = gemm_rate(player.bundle.n_vertices, player.order ** 2, int(player.rpo.M.shape[0]),
                                args.threads)
-    files = meta["files"]
     if best_mode not in ("split", "overlap"):
-        model_bytes = initializer_bytes(run_dir / files["fused"])
+        model_bytes = initializer_bytes(run.graph_path("fused"))
     else:
-        model_bytes = initializer_bytes(run_dir / files["visibility"]) + initializer_bytes(run_dir / files["shading"])
+        model_bytes = initializer_bytes(run.graph_path("visibility")) + initializer_bytes(run.graph_path("shading"))
     model_bytes += player.rpo.M.nbytes + player.rpo.w.nbytes + player.lighting.coeffs.nbytes
     stream_s = model_bytes / bw
     bandwidth_fraction = stream_s / frame_s
@@ -285,12 +286,3 @@ def run(args: argparse.Namespace) -> int:
     t.add_row(f"batched B={b}: per call", f"{batch_s * 1e3:.1f} ms = {b / batch_s:.0f} character-frames/s")
     Console().print(t)  # the result table on stdout (progress went to stderr)
     return 0
-
-
-def _dataset_attrs(run_dir: Path) -> dict[str, Any]:
-    path = run_dir / "dataset.zarr"
-    if not path.exists():
-        return {}
-    import zarr
-
-    return dict(zarr.open_group(str(path), mode="r").attrs)

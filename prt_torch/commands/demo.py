@@ -8,8 +8,6 @@ and write a side-by-side PNG (ray-traced truth | model | unshadowed) and the met
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -17,8 +15,6 @@ from typing import Any
 import numpy as np
 
 HELP = "Run everything on the built-in character (bake, fit, export, play, compare) into runs/demo/."
-
-STATE_FILE = "demo_state.json"
 
 
 def default_config() -> Path:
@@ -32,22 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--env", default=None, help="HDR environment map for the video and PNG (default: procedural "
                                                     "sun and sky)")
     parser.add_argument("--brdf", default="phong", help="BRDF of the video and PNG (default: phong)")
-    parser.add_argument("--frames", type=int, default=None, help="play at most this many held-out frames")
+    parser.add_argument("--max-frames", "--frames", dest="max_frames", type=int, default=None,
+                        help="play at most this many held-out frames")
     parser.add_argument("--size", default="640x400", help="image size HxW (default 640x400)")
     parser.add_argument("--force", action="store_true", help="redo fit and export even if up to date")
-
-
-def _key(obj: Any) -> str:
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def _dataset_key(path: Path) -> dict[str, Any]:
-    import zarr
-
-    g = zarr.open_group(str(path), mode="r")
-    a = dict(g.attrs)
-    return {"fingerprint": a.get("frames_fingerprint"), "character_hash": a.get("character_hash"),
-            "bake": a.get("bake"), "done": int(np.asarray(g["done"][:]).sum())}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,8 +41,9 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.config import load_config
     from prt_torch.errors import PrtError
     from prt_torch.export.run import export_run
-    from prt_torch.fit.train import train_dataset
+    from prt_torch.fit.train import train_dataset, train_key
     from prt_torch.io import atomic_write_json
+    from prt_torch.rundir import RunDir
 
     console = Console(stderr=True)
     t_all = time.perf_counter()
@@ -66,37 +51,33 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(cfg_path)
     if args.run_dir:
         cfg.run_dir = Path(args.run_dir)
-    run_dir = Path(cfg.out_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
     try:
         h, w = (int(x) for x in args.size.lower().split("x"))
     except ValueError:
         raise PrtError(f"bad --size {args.size!r}: expected HxW, e.g. 480x640") from None
-    state_path = run_dir / STATE_FILE
-    state: dict[str, Any] = json.loads(state_path.read_text()) if state_path.is_file() else {}
+    run = RunDir(cfg.out_dir)
+    run.path.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}
 
-    console.rule(f"[bold]prt demo -> {run_dir}")
+    console.rule(f"[bold]prt demo -> {run.path}")
     t0 = time.perf_counter()
     console.print("[bold]1/5 bake[/] (Embree ground truth; resumes finished blocks)")
-    dataset = bake(cfg)
+    bake(cfg)
+    ds = run.dataset()
     seconds["bake"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    train_key = _key({"train": cfg.train.model_dump(mode="json"), "dataset": _dataset_key(dataset)})
-    if not args.force and state.get("train_key") == train_key and (run_dir / "model.pt").is_file():
-        console.print("[bold]2/5 fit[/]: up to date, reusing model.pt")
+    if not args.force and run.is_current("train", train_key(ds, cfg.train), (run.model_path(), run.model_json)):
+        console.print("[bold]2/5 fit[/]: up to date, reusing the trained models")
     else:
         console.print("[bold]2/5 fit[/] (PCA + ridge / per-cluster MLP, L-BFGS)")
         with console.status("fitting ..."):
-            train_dataset(dataset, run_dir, cfg.train)
-        state["train_key"] = train_key
-        atomic_write_json(state_path, state)
+            train_dataset(ds, run, cfg.train)
     seconds["fit"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     console.print("[bold]3/5 export[/] (ONNX graphs, parity with torch on held-out poses)")
-    meta = export_run(run_dir, force=args.force, console=console)
+    meta = export_run(run, force=args.force, console=console)
     seconds["export"] = time.perf_counter() - t0
 
     heldout = list(cfg.character.heldout_clips)
@@ -107,20 +88,19 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.player import Player
 
     t0 = time.perf_counter()
-    player = Player(run_dir, env=args.env, brdf=args.brdf, window_size=(h, w))
+    player = Player(run, env=args.env, brdf=args.brdf, window_size=(h, w))
     try:
-        console.print(f"[bold]4/5 compare[/] held-out '{clip}': truth | model | unshadowed -> "
-                      f"{run_dir / 'comparison.png'}")
-        comp = compare_heldout(player, dataset, clip, console)
+        console.print(f"[bold]4/5 compare[/] held-out '{clip}': truth | model | unshadowed -> {run.demo_image}")
+        comp = compare_heldout(player, ds, clip, run.demo_image)
         seconds["compare"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        console.print(f"[bold]5/5 play[/] held-out clip '{clip}' with onnxruntime -> {run_dir / 'heldout.mp4'}")
-        res = player.play(clip, out=run_dir / "heldout.mp4", frames=args.frames,
-                          timings=run_dir / "heldout.timings.json")
+        console.print(f"[bold]5/5 play[/] held-out clip '{clip}' with onnxruntime -> {run.demo_video}")
+        res = player.play(clip, out=run.demo_video, max_frames=args.max_frames,
+                          timings=run.timings_path(run.demo_video))
         seconds["play"] = time.perf_counter() - t0
     finally:
         player.close()
-    fit_metrics = json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").is_file() else {}
+    fit_metrics = run.read_json(run.metrics_json) if run.metrics_json.is_file() else {}
     seconds["total"] = time.perf_counter() - t_all
     metrics = {
         "heldout_clip": clip, "n_vertices": meta["n_vertices"], "sh_order": meta["sh_order"],
@@ -132,41 +112,33 @@ def run(args: argparse.Namespace) -> int:
                  "total_fps": res.summary.get("total_fps")},
         "seconds": seconds,
     }
-    atomic_write_json(run_dir / "demo_metrics.json", metrics)
+    atomic_write_json(run.demo_metrics, metrics)
     console.print(f"held-out '{clip}': visibility rel. error model {comp['vis_rel_err_model']:.4f} vs "
                   f"unshadowed {comp['vis_rel_err_unshadowed']:.4f}; radiance rel. RMSE model "
                   f"{comp['radiance_rel_rmse_model']:.4f} vs unshadowed {comp['radiance_rel_rmse_unshadowed']:.4f}")
     console.print(f"playback: {res.summary.get('compute_fps', 0):.0f} frames/s compute path, "
                   f"{res.summary.get('total_fps', 0):.1f} frames/s with rendering + encoding")
-    console.print(f"wrote {run_dir / 'heldout.mp4'}, {run_dir / 'comparison.png'}, {run_dir / 'demo_metrics.json'} "
-                  f"in {seconds['total']:.0f} s")
+    console.print(f"wrote {run.demo_video}, {run.demo_image}, {run.demo_metrics} in {seconds['total']:.0f} s")
     return 0
 
 
-def compare_heldout(player: Any, dataset: Path, clip: str, console: Any = None) -> dict[str, Any]:
-    """Truth vs model vs unshadowed on every baked frame of ``clip`` (ORT path), and the PNG.
+def compare_heldout(player: Any, ds: Any, clip: str, out: Path) -> dict[str, Any]:
+    """Truth vs model vs unshadowed on every baked frame of ``clip`` (ORT path), and the PNG ``out``.
 
-    Returns metrics: visibility relative L2 errors (model and the unshadowed hemisphere vs the
-    ray-traced truth) and radiance relative RMSEs under the player's lighting and BRDF.
+    ``ds``: the run's :class:`prt_torch.bake.store.BakedDataset`. Returns metrics: visibility relative
+    L2 errors (model and the unshadowed hemisphere vs the ray-traced truth) and radiance relative RMSEs
+    under the player's lighting and BRDF.
     """
-    import zarr
-
     from prt_torch.errors import PrtError
     from prt_torch.player.posing import PoseBatch
     from prt_torch.player.video import write_png
 
-    g = zarr.open_group(str(dataset), mode="r")
-    names = list(g.attrs["clip_names"])
-    if clip not in names:
-        raise PrtError(f"held-out clip {clip!r} is not in {dataset}")
-    rows = np.flatnonzero((np.asarray(g["clip_id"][:]) == names.index(clip)) & np.asarray(g["done"][:]))
+    rows = ds.clip_rows(clip)
     if rows.size == 0:
-        raise PrtError(f"no baked frames of {clip!r} in {dataset}")
-    sel = (rows,)
-    truth = np.asarray(g["visibility"].get_orthogonal_selection(sel), dtype=np.float32)
-    pose = np.asarray(g["pose"].get_orthogonal_selection((rows, slice(None))), dtype=np.float32)
-    pos = np.asarray(g["positions"].get_orthogonal_selection(sel), dtype=np.float32)
-    frames = np.asarray(g["frames"].get_orthogonal_selection(sel), dtype=np.float32)
+        raise PrtError(f"no baked frames of {clip!r} in {ds.path}")
+    data = {k: np.asarray(v, dtype=np.float32)
+            for k, v in ds.rows(rows, ("visibility", "pose", "positions", "frames")).items()}
+    truth, pose, pos, frames = data["visibility"], data["pose"], data["positions"], data["frames"]
     n, v = pos.shape[:2]
     eye = player.eye
     view = eye[None, None, :] - pos
@@ -207,7 +179,6 @@ def compare_heldout(player: Any, dataset: Path, clip: str, console: Any = None) 
                         ("error", "|model - truth|")):
         grey = np.repeat(blocked[name][None, :, None], 3, axis=-1).astype(np.float32)
         row2.append(_label(player.render_frame(state, np.broadcast_to(grey, (n,) + grey.shape[1:]), index=i), label))
-    out = player.bundle.run_dir / "comparison.png"
     write_png(out, np.concatenate([np.concatenate(panels, axis=1), np.concatenate(row2, axis=1)], axis=0))
     player.exposure = None  # the video picks its own
     shadowed = (rad["truth"].sum(-1) < 0.8 * rad["unshadowed"].sum(-1))  # where the truth says "in shadow"

@@ -14,7 +14,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--brdf", default=None, help="BRDF name from the run's RPO catalogue, or an RPO .npz")
     parser.add_argument("--out", default=None, help="write an MP4 here (offscreen)")
     parser.add_argument("--png", default=None, help="write PNG frames into this directory (offscreen)")
-    parser.add_argument("--frames", type=int, default=None, help="play at most this many frames")
+    parser.add_argument("--max-frames", "--frames", dest="max_frames", type=int, default=None,
+                        help="play at most this many frames")
     parser.add_argument("--fps", type=float, default=None, help="resample the clip to this rate")
     parser.add_argument("--graph", default="fused", choices=["fused", "split", "overlap"],
                         help="one fused ORT graph, visibility then shading, or visibility on a worker thread "
@@ -22,13 +23,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     parser.add_argument("--size", default="480x640", help="image size HxW (default 480x640)")
     parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
-                                                        "RUN/play_timings.json)")
+                                                        "a timings file in RUN)")
     parser.add_argument("--light-angle", type=float, default=0.0, help="rotate the lighting about z (degrees)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     import numpy as np
     from rich.console import Console
 
@@ -44,14 +43,16 @@ def run(args: argparse.Namespace) -> int:
     show = args.out is None and args.png is None
     if show and not has_display():
         raise PrtError("no display: pass --out video.mp4 or --png DIR to render offscreen")
-    timings = args.timings or (str(Path(args.out).with_suffix(".timings.json")) if args.out
-                               else str(Path(args.run) / "play_timings.json"))
+    from prt_torch.rundir import RunDir
+
+    run = RunDir(args.run)
+    timings = args.timings or (run.timings_path(args.out) if args.out else run.play_timings)
     player = Player(args.run, env=args.env, brdf=args.brdf, graph=args.graph, threads=args.threads,
                     window_size=(h, w))
     if args.light_angle:
         player.rotate_light(np.radians(args.light_angle))
     try:
-        res = player.play(args.clip, out=args.out, png_dir=args.png, frames=args.frames, fps=args.fps,
+        res = player.play(args.clip, out=args.out, png_dir=args.png, max_frames=args.max_frames, fps=args.fps,
                           timings=timings, show=show)
     finally:
         player.close()

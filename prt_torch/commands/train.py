@@ -6,12 +6,12 @@ import argparse
 import json
 from pathlib import Path
 
-HELP = "Fit pose->visibility models (linear, quadratic, per-cluster MLP) on runs/NAME/dataset.zarr."
+HELP = "Fit pose->visibility models (linear, quadratic, per-cluster MLP) on the baked dataset of runs/NAME."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", help="run config (YAML), e.g. configs/builtin.yaml")
-    parser.add_argument("--dataset", default=None, help="dataset.zarr to read (default: <run_dir>/dataset.zarr)")
+    parser.add_argument("--dataset", default=None, help="baked dataset to read (default: the run's own)")
     parser.add_argument("--run-dir", default=None, help="output run directory (default: runs/<name>)")
     parser.add_argument("--kinds", default=None, help="comma-separated subset of linear,quadratic,mlp")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
@@ -22,7 +22,8 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from prt_torch.config import load_config
-    from prt_torch.fit.train import train_dataset
+    from prt_torch.fit.train import dataset_of, train_dataset
+    from prt_torch.rundir import RunDir
 
     cfg = load_config(args.config)
     if args.run_dir:
@@ -32,22 +33,17 @@ def run(args: argparse.Namespace) -> int:
         kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
         tcfg = tcfg.model_validate({**tcfg.model_dump(), "kinds": kinds,
                                     "default_kind": tcfg.default_kind if tcfg.default_kind in kinds else kinds[-1]})
-    run_dir = Path(cfg.out_dir)
-    if args.dataset:
-        dataset = Path(args.dataset)
-    elif tcfg.dataset:
-        dataset = cfg.resolve(tcfg.dataset)
-    else:
-        dataset = run_dir / "dataset.zarr"
+    run = RunDir(cfg.out_dir)
+    dataset = Path(args.dataset) if args.dataset else dataset_of(cfg)
     console = Console(stderr=True)
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=console,
                   transient=True) as progress:
-        metrics = train_dataset(dataset, run_dir, tcfg, progress)
+        metrics = train_dataset(dataset, run, tcfg, progress)
     if args.json:
         print(json.dumps(metrics, indent=2, sort_keys=True))
     else:
         for kind, m in metrics["models"].items():
             errs = "  ".join(f"{s} {m[s]['vis_rel_err']:.4f}" for s in ("train", "heldout") if s in m)
             console.print(f"{kind:10s} fit {m['fit_s']:8.2f} s   vis_rel_err {errs}")
-        console.print(f"wrote {run_dir}/model.pt, models/, model.json, metrics.json")
+        console.print(f"wrote {run.model_path()}, {run.models_dir}/, {run.model_json}, {run.metrics_json}")
     return 0

@@ -1,15 +1,18 @@
-"""``export_run(run_dir)``: a trained run -> ONNX graphs + RPO files + ``export.json``.
+"""``export_run(run_dir)``: a trained run -> ONNX graphs + RPO files + export metadata.
 
-Writes into ``run_dir``:
+Writes into the run directory (file names: :class:`prt_torch.rundir.RunDir`):
 
-* ``visibility.onnx``: ``pose (B, A) -> visibility (B, V, C)`` (local frame);
-* ``shading.onnx``: ``visibility (B, V, C), frames (B, 9, V), view_dirs (B, 3, V), lobe_dirs (K, 3),
+* the visibility graph: ``pose (B, A) -> visibility (B, V, C)`` (local frame);
+* the shading graph: ``visibility (B, V, C), frames (B, 9, V), view_dirs (B, 3, V), lobe_dirs (K, 3),
   lobe_coeffs (K, n, 3), rpo_M (k, C, C), rpo_w (k, C), rpo_tint (3,) -> radiance (B, V, 3)``
   (:class:`prt_torch.export.graphs.ShadingGraph`; frames and view directions vertex-last);
-* ``fused.onnx``: the two in one graph (``pose`` instead of ``visibility``);
-* ``rpo/<name>.npz`` for each named BRDF (loadable without torch);
-* ``export.json``: sizes, conventions, file names, parity errors, character hash - everything the
-  player needs besides ``character.npz``.
+* the fused graph: the two in one (``pose`` instead of ``visibility``);
+* one RPO file per named BRDF (loadable without torch), the cluster data of the vertex frames;
+* the export metadata: sizes, conventions, file names, parity errors, character hash - everything the
+  player needs besides the character file.
+
+Up to date when the run's ``export`` stage key (model file hash + export settings) is unchanged and
+every file exists (:meth:`prt_torch.rundir.RunDir.is_current`).
 
 Each graph is checked by ``onnx.checker`` and against torch on held-out poses (relative error <= 1e-4
 in float32, else :class:`PrtError`). Every file is written atomically.
@@ -17,8 +20,6 @@ in float32, else :class:`PrtError`). Every file is written atomically.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import time
 from pathlib import Path
@@ -26,15 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import check
 from prt_torch.io import atomic_write_json
+from prt_torch.rundir import GRAPHS, RunDir, file_sha256, stage_key
 
-#: ONNX files and metadata file names inside a run directory
-VISIBILITY_FILE = "visibility.onnx"
-SHADING_FILE = "shading.onnx"
-FUSED_FILE = "fused.onnx"
-EXPORT_JSON = "export.json"
-RPO_DIR = "rpo"
 FORMAT = "prt_torch.export/1"
 
 #: default BRDFs exported with every run (:func:`prt_torch.brdf.rpo.builtin_rpo` names)
@@ -45,58 +41,32 @@ CONVENTIONS = ("z-up world; real SH orthonormal, index l*(l+1)+m, no Condon-Shor
                "y_lm(s); RPO shading L = tint * sum_b (w_b . y(wo)) (l . M_b v) (seed 003 eq. 11)")
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def heldout_inputs(run_dir: Path, n_max: int = 8) -> dict[str, np.ndarray]:
-    """Held-out poses, frames and positions from ``run_dir/dataset.zarr`` (first ``n_max`` held-out rows).
-
-    Falls back to the last rows of the dataset when it has no held-out split.
-    """
-    import zarr
-
-    path = run_dir / "dataset.zarr"
-    if not path.exists():
-        raise PrtError(f"no dataset in {run_dir} (dataset.zarr missing): cannot check parity on held-out poses")
-    g = zarr.open_group(str(path), mode="r")
-    clip_names = list(g.attrs.get("clip_names", []))
-    held = list((g.attrs.get("splits") or {}).get("heldout", []))
-    done = np.asarray(g["done"][:]) if "done" in g else np.ones(g["pose"].shape[0], dtype=bool)
-    clip_id = np.asarray(g["clip_id"][:])
-    held_ids = [clip_names.index(c) for c in held if c in clip_names]
-    rows = np.flatnonzero(np.isin(clip_id, held_ids) & done)
+def heldout_inputs(run: RunDir, n_max: int = 8) -> dict[str, np.ndarray]:
+    """Held-out poses, frames and positions of the run's dataset (``n_max`` evenly spaced done held-out
+    frames; the last done frames when it has no held-out split)."""
+    ds = run.dataset()
+    rows = ds.split_rows("heldout") if "heldout" in ds.splits else np.zeros(0, np.int64)
     if rows.size == 0:
-        rows = np.flatnonzero(done)[-n_max:]
-    check(rows.size > 0, f"{path}: no finished frames to check parity on")
-    rows = rows[np.linspace(0, rows.size - 1, min(n_max, rows.size)).round().astype(int)]
-    rows = np.unique(rows)
-    return {"pose": np.asarray(g["pose"].get_orthogonal_selection((rows, slice(None))), dtype=np.float32),
-            "frames": np.asarray(g["frames"].get_orthogonal_selection((rows,)), dtype=np.float32),
-            "positions": np.asarray(g["positions"].get_orthogonal_selection((rows,)), dtype=np.float32),
-            "rows": rows}
+        rows = np.flatnonzero(ds.done)[-n_max:]
+    check(rows.size > 0, f"{ds.path}: no finished frames to check parity on")
+    rows = np.unique(rows[np.linspace(0, rows.size - 1, min(n_max, rows.size)).round().astype(int)])
+    data = ds.rows(rows, ("pose", "frames", "positions"))
+    return {k: np.asarray(v, dtype=np.float32) for k, v in data.items()} | {"rows": rows}
 
 
-def write_frame_data(run_dir: Path) -> Path:
-    """Copy the dataset's ``cluster (V,)``, ``cluster_axis (Kc, 3)``, ``cluster_bone (Kc,)`` to
-    ``run_dir/frames.npz`` (atomically): the player rebuilds the local vertex frames from them."""
-    import zarr
-
+def write_frame_data(run: RunDir) -> Path:
+    """Copy the dataset's ``cluster (V,)``, ``cluster_axis (Kc, 3)``, ``cluster_bone (Kc,)`` to the run's
+    frame-data file (atomically): the player rebuilds the vertex frames from them."""
     from prt_torch.io import atomic_path
 
-    g = zarr.open_group(str(run_dir / "dataset.zarr"), mode="r")
-    missing = [k for k in ("cluster", "cluster_axis", "cluster_bone") if k not in g]
-    check(not missing, f"{run_dir / 'dataset.zarr'}: missing frame data {missing} (re-bake the dataset)")
-    out = run_dir / "frames.npz"
+    ds = run.dataset()
+    missing = [k for k in ("cluster", "cluster_axis", "cluster_bone") if k not in ds]
+    check(not missing, f"{ds.path}: missing frame data {missing} (re-bake the dataset)")
+    out = run.frames_path
     with atomic_path(out) as tmp:
         with open(tmp, "wb") as f:
-            np.savez(f, cluster=np.asarray(g["cluster"][:], dtype=np.int32),
-                     cluster_axis=np.asarray(g["cluster_axis"][:], dtype=np.float32),
-                     cluster_bone=np.asarray(g["cluster_bone"][:], dtype=np.int32))
+            np.savez(f, cluster=ds.cluster.astype(np.int32), cluster_axis=ds.cluster_axis.astype(np.float32),
+                     cluster_bone=ds.cluster_bone.astype(np.int32))
     return out
 
 
@@ -122,20 +92,21 @@ def default_eye(positions: np.ndarray) -> np.ndarray:
     return (c + np.array([0.35, -1.0, 0.25]) * 1.6 * size).astype(np.float32)
 
 
-def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: tuple[str, ...] = DEFAULT_BRDFS,
-               n_terms: int = 8, opset: int = 17, exporter: str = "torchscript", force: bool = False,
+def export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None,
+               brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
+               exporter: str = "torchscript", force: bool = False,
                console: Any = None) -> dict[str, Any]:
     """Export a trained run to ONNX; returns the ``export.json`` content.
 
     Args:
-        run_dir: ``runs/NAME`` holding ``model.pt`` (or ``models/<kind>.pt``), ``character.npz`` and
-            ``dataset.zarr`` (for the held-out parity check).
+        run_dir: ``runs/NAME`` holding the trained model, the character and the dataset (for the
+            held-out parity check).
         kind: model kind (``None``: the run's default model).
         brdfs: named BRDFs to turn into RPO files (order of the model, ``n_terms`` terms).
         n_terms: BRDF terms ``k`` of the shading graph (RPOs with fewer terms are zero-padded at run time).
         opset: ONNX opset (>= 17).
         exporter: ``"torchscript"`` or ``"dynamo"``.
-        force: re-export even when ``export.json`` matches the model file.
+        force: re-export even when the export is up to date (same model file and settings).
     """
     import torch
 
@@ -149,36 +120,31 @@ def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: 
     from prt_torch.export.onnx_file import export_onnx, initializer_bytes
     from prt_torch.export.parity import check_parity
     from prt_torch.models.visibility import load_model, model_path
-    from prt_torch.rig.character import Character
 
-    run_dir = Path(run_dir)
-    check(run_dir.is_dir(), f"run directory not found: {run_dir}")
-    mpath = model_path(run_dir, kind)
-    model = load_model(run_dir, kind)
-    model_hash = _sha256_file(mpath)
-    meta_path = run_dir / EXPORT_JSON
-    if not force and meta_path.is_file():
-        old = json.loads(meta_path.read_text())
-        files = [run_dir / old.get("files", {}).get(k, "-") for k in ("visibility", "shading", "fused")]
-        if (old.get("model_sha256") == model_hash and old.get("n_terms") == n_terms and old.get("opset") == opset
-                and all(f.is_file() for f in files) and sorted(old.get("brdfs", [])) == sorted(brdfs)):
-            return old
-    char_path = run_dir / "character.npz"
-    character = Character.load(char_path)
+    run = RunDir.of(run_dir).require()
+    mpath = model_path(run, kind)
+    model = load_model(run, kind)
+    model_hash = file_sha256(mpath)
+    key = stage_key({"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
+                     "brdfs": sorted(brdfs)})
+    outputs = (run.export_json, run.frames_path, *(run.graph_path(g) for g in GRAPHS),
+               *(run.rpo_path(b) for b in brdfs))
+    if not force and run.is_current("export", key, outputs):
+        return run.export_meta()
+    character = run.character()
     check(character.num_vertices == model.n_vertices,
-          f"model has {model.n_vertices} vertices but {char_path} has {character.num_vertices}")
+          f"model has {model.n_vertices} vertices but {run.character_path} has {character.num_vertices}")
     check(character.feature_width == model.n_features,
           f"model takes {model.n_features} pose features but the character gives {character.feature_width}")
     order, V, A, C = model.order, model.n_vertices, model.n_features, model.n_coeffs
-    held = heldout_inputs(run_dir)
-    write_frame_data(run_dir)
+    held = heldout_inputs(run)
+    write_frame_data(run)
     check(held["frames"].shape[1] == V, f"dataset has {held['frames'].shape[1]} vertices, the model {V}")
     rpos = build_rpos(brdfs, order, n_terms)
     rpo_files = {}
     for name, rpo in rpos.items():
-        rel = f"{RPO_DIR}/{name}.npz"
-        rpo.save(run_dir / rel)
-        rpo_files[name] = rel
+        rpo.save(run.rpo_path(name))
+        rpo_files[name] = run.relative(run.rpo_path(name))
 
     base_meta = {
         "prt.format": FORMAT, "prt.conventions": CONVENTIONS, "prt.sh_order": order, "prt.n_coeffs": C,
@@ -210,12 +176,12 @@ def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: 
     dyn_fused = {"pose": batch, "frames": batch, "view_dirs": batch, "radiance": batch}
     t0 = time.perf_counter()
     parity: dict[str, Any] = {}
-    specs = [("visibility", VISIBILITY_FILE, vis_graph, {"pose": pose}, ("pose",), ("visibility",),
+    specs = [("visibility", vis_graph, {"pose": pose}, ("pose",), ("visibility",),
               {"pose": batch, "visibility": batch}),
-             ("shading", SHADING_FILE, shade_graph, shade_in, SHADING_INPUTS, ("radiance",), dyn_shade),
-             ("fused", FUSED_FILE, fused_graph, fused_in, FUSED_INPUTS, ("radiance",), dyn_fused)]
-    for graph_name, fname, module, inputs, in_names, out_names, dyn in specs:
-        path = run_dir / fname
+             ("shading", shade_graph, shade_in, SHADING_INPUTS, ("radiance",), dyn_shade),
+             ("fused", fused_graph, fused_in, FUSED_INPUTS, ("radiance",), dyn_fused)]
+    for graph_name, module, inputs, in_names, out_names, dyn in specs:
+        path = run.graph_path(graph_name)
         args = [torch.from_numpy(np.ascontiguousarray(inputs[k], dtype=np.float32)) for k in in_names]
         export_onnx(module, args, path, in_names, out_names, dyn, metadata={**base_meta, "prt.graph": graph_name},
                     opset=opset, exporter=exporter)
@@ -223,18 +189,19 @@ def export_run(run_dir: str | os.PathLike[str], kind: str | None = None, brdfs: 
         parity[graph_name] = {**p.as_dict(), "initializer_bytes": initializer_bytes(path),
                               "file_bytes": path.stat().st_size}
         if console is not None:
-            console.print(f"  {fname}: parity rel. error {p.rel_error:.2e} on {len(pose)} held-out poses")
+            console.print(f"  {path.name}: parity rel. error {p.rel_error:.2e} on {len(pose)} held-out poses")
     meta = {
         "format": FORMAT, "conventions": CONVENTIONS, "sh_order": order, "n_coeffs": C, "n_vertices": V,
         "n_features": A, "n_terms": n_terms, "model_kind": model.kind, "model_sha256": model_hash, "opset": opset,
         "exporter": exporter, "character_hash": character.content_hash(), "character_name": character.name,
-        "character_file": "character.npz", "frames_file": "frames.npz",
-        "files": {"visibility": VISIBILITY_FILE, "shading": SHADING_FILE, "fused": FUSED_FILE},
+        "character_file": run.relative(run.character_path), "frames_file": run.relative(run.frames_path),
+        "files": {g: run.relative(run.graph_path(g)) for g in GRAPHS},
         "inputs": {"visibility": ["pose"], "shading": list(SHADING_INPUTS), "fused": list(FUSED_INPUTS)},
         "brdfs": sorted(rpo_files), "rpo_files": rpo_files, "parity": parity,
         "parity_rows": held["rows"].tolist(), "export_seconds": time.perf_counter() - t0,
     }
-    atomic_write_json(meta_path, meta)
+    atomic_write_json(run.export_json, meta)
+    run.mark_done("export", key)
     return meta
 
 

@@ -19,11 +19,11 @@ inputs each cluster may use (weights of the others are zero).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import check
 from prt_torch.rig.features import FEATURES_PER_JOINT
 
 
@@ -80,14 +80,10 @@ def joint_inputs(pose: np.ndarray, parents: np.ndarray, joints: np.ndarray, weig
     return JointInputs(mean=mean, proj=proj, mask=mask, live=live)
 
 
-def load_skinning(dataset: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``parents (J,)``, ``joints (V, 4)``, ``weights (V, 4)`` from the ``character.npz`` the
-    bake writes next to ``dataset.zarr``."""
-    path = Path(dataset).parent / "character.npz"
-    if not path.is_file():
-        raise PrtError(f"input_selection 'joints' needs the skinning of the character: {path} not found")
-    with np.load(path) as d:
-        missing = [k for k in ("parents", "joints", "weights") if k not in d]
-        if missing:
-            raise PrtError(f"{path}: no {', '.join(missing)} array")
-        return np.asarray(d["parents"]), np.asarray(d["joints"]), np.asarray(d["weights"])
+def load_skinning(ds: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``parents (J,)``, ``joints (V, K)``, ``weights (V, K)`` of the character of a
+    :class:`prt_torch.bake.store.BakedDataset` (its run directory's character file)."""
+    from prt_torch.rig.character import Character
+    from prt_torch.rundir import RunDir
+
+    return Character.load_skinning(RunDir(ds.path).character_path)

@@ -1,7 +1,7 @@
 """Training: reduce, cross-validate and fit every model kind, write the run's model files.
 
-``train(config)`` reads ``dataset.zarr`` (the ``train`` split, and ``heldout`` for the metrics
-when present) and writes into the run directory::
+``train(config)`` reads the run's baked dataset (the ``train`` split, and ``heldout`` for the metrics
+when present) and writes into the run directory (:class:`prt_torch.rundir.RunDir` names the files)::
 
     models/<kind>.pt     one VisibilityModel per kind (packed state dict + config)
     model.pt             the default kind (mlp when trained): a hard link, not a second copy
@@ -20,15 +20,15 @@ from typing import Any
 import numpy as np
 import torch
 
+from prt_torch.bake.store import BakedDataset, SplitData, open_dataset
 from prt_torch.errors import PrtError, check
-from prt_torch.metrics import vis_rel_err
 from prt_torch.fit.config import TrainConfig
-from prt_torch.fit.data import DatasetInfo, SplitData, dataset_info, load_split
 from prt_torch.fit.folds import blocked_folds
 from prt_torch.fit.inputs import JointInputs, joint_inputs, load_skinning
 from prt_torch.fit.mlp import fit_mlp
 from prt_torch.fit.ridge import fit_ridge_per_group, ridge_cv, ridge_path
 from prt_torch.io import atomic_write_json
+from prt_torch.metrics import vis_rel_err
 from prt_torch.models import (
     GlobalUnprojection,
     InputProjection,
@@ -42,6 +42,7 @@ from prt_torch.models import (
 )
 from prt_torch.models.regressors import quadratic_features
 from prt_torch.reduce import PCA, ClusterPCA, GlobalOutputPCA
+from prt_torch.rundir import RunDir, stage_key
 
 
 @dataclass
@@ -273,7 +274,7 @@ def predict(model: VisibilityModel, pose: np.ndarray) -> np.ndarray:
     return model.predict(pose).numpy()
 
 
-def _metadata(info: DatasetInfo, cfg: TrainConfig, red: Reduced, fits: dict[str, FitResult], default: str,
+def _metadata(info: BakedDataset, cfg: TrainConfig, red: Reduced, fits: dict[str, FitResult], default: str,
               train: SplitData) -> dict[str, Any]:
     return {
         "format": "prt_torch.run/1",
@@ -293,7 +294,7 @@ def _metadata(info: DatasetInfo, cfg: TrainConfig, red: Reduced, fits: dict[str,
         "n_clusters": red.out.n_groups,
         "kinds": list(fits),
         "default_kind": default,
-        "dataset": str(info.path),
+        "dataset": str(info.path.resolve()),
         "character_hash": info.character_hash,
         "train_clips": train.clips,
         "train_frames": train.n_frames,
@@ -302,12 +303,17 @@ def _metadata(info: DatasetInfo, cfg: TrainConfig, red: Reduced, fits: dict[str,
     }
 
 
-def train_dataset(dataset: str | Path, run_dir: str | Path, cfg: TrainConfig | None = None,
+def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
+    """The ``train`` stage key: the training settings and the dataset's content key."""
+    return stage_key({"train": cfg.model_dump(mode="json"), "dataset": ds.key()})
+
+
+def train_dataset(dataset: str | Path | BakedDataset, run_dir: str | Path | RunDir, cfg: TrainConfig | None = None,
                   progress: Any = None) -> dict[str, Any]:
     """Train every kind on ``dataset`` and write the run files into ``run_dir``; returns metrics."""
     cfg = cfg or TrainConfig()
-    run_dir = Path(run_dir)
-    info = dataset_info(dataset)
+    run = RunDir.of(run_dir)
+    ds = dataset if isinstance(dataset, BakedDataset) else open_dataset(dataset)
     torch.manual_seed(cfg.seed)
     threads = torch.get_num_threads()
     if cfg.threads:
@@ -318,31 +324,30 @@ def train_dataset(dataset: str | Path, run_dir: str | Path, cfg: TrainConfig | N
             from threadpoolctl import threadpool_limits
 
             with threadpool_limits(limits=cfg.threads):
-                return _train(dataset, run_dir, cfg, info, progress)
-        return _train(dataset, run_dir, cfg, info, progress)
+                return _train(ds, run, cfg, progress)
+        return _train(ds, run, cfg, progress)
     finally:
         torch.set_num_threads(threads)
 
 
-def _train(dataset: str | Path, run_dir: Path, cfg: TrainConfig, info: DatasetInfo, progress: Any) -> dict[str, Any]:
-    train = load_split(dataset, "train")
-    check(train.n_frames >= 2 * cfg.folds, f"{dataset}: only {train.n_frames} training frames for {cfg.folds} folds")
-    skinning = load_skinning(dataset) if cfg.input_selection == "joints" else None
-    red = reduce_training(train, info.cluster, cfg, skinning)
-    _log(progress, f"input PCA: {info.n_features} -> {red.inp.n_components} dims ({red.inp.retained:.3f} variance); "
+def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
+    train = ds.split("train")
+    check(train.n_frames >= 2 * cfg.folds, f"{ds.path}: only {train.n_frames} training frames for {cfg.folds} folds")
+    skinning = load_skinning(ds) if cfg.input_selection == "joints" else None
+    red = reduce_training(train, ds.cluster, cfg, skinning)
+    _log(progress, f"input PCA: {ds.n_features} -> {red.inp.n_components} dims ({red.inp.retained:.3f} variance); "
                    f"output PCA: {red.out.n_groups} clusters, dims {red.out.dims.min()}..{red.out.width}")
     fits = fit_kinds(red, cfg, progress)
-    (run_dir / "models").mkdir(parents=True, exist_ok=True)
     for kind, r in fits.items():
-        save_model(r.model, run_dir / "models" / f"{kind}.pt")
+        save_model(r.model, run.model_path(kind))
     default = cfg.default_kind if cfg.default_kind in fits else next(iter(fits))
-    link_default(run_dir, default)
-    meta = _metadata(info, cfg, red, fits, default, train)
+    link_default(run, default)
+    meta = _metadata(ds, cfg, red, fits, default, train)
     metrics: dict[str, Any] = {"models": {}}
     splits = {"train": train}
-    if "heldout" in info.splits:
+    if "heldout" in ds.splits:
         try:
-            splits["heldout"] = load_split(dataset, "heldout", max_frames=cfg.eval_frames)
+            splits["heldout"] = ds.split("heldout", max_frames=cfg.eval_frames)
         except PrtError:
             pass
     for kind, r in fits.items():
@@ -352,14 +357,19 @@ def _train(dataset: str | Path, run_dir: Path, cfg: TrainConfig, info: DatasetIn
     for name, sp in splits.items():
         metrics.setdefault("pca_floor", {})[name] = vis_rel_err(red.out.expand(red.out.reduce(sp.visibility)),
                                                                sp.visibility)
-    atomic_write_json(run_dir / "model.json", meta)
-    atomic_write_json(run_dir / "metrics.json", metrics)
+    atomic_write_json(run.model_json, meta)
+    atomic_write_json(run.metrics_json, metrics)
+    run.mark_done("train", train_key(ds, cfg))
     return metrics
 
 
-def train(config: Any, progress: Any = None) -> Path:
+def dataset_of(config: Any) -> Path:
+    """The dataset a run config trains on: ``train.dataset`` when set, else the run's own."""
+    return config.resolve(config.train.dataset) if config.train.dataset else RunDir(config.out_dir).dataset_path
+
+
+def train(config: Any, progress: Any = None) -> RunDir:
     """Train from a :class:`prt_torch.config.RunConfig`; returns the run directory."""
-    run_dir = Path(config.out_dir)
-    dataset = config.resolve(config.train.dataset) if config.train.dataset else run_dir / "dataset.zarr"
-    train_dataset(dataset, run_dir, config.train, progress)
-    return run_dir
+    run = RunDir(config.out_dir)
+    train_dataset(dataset_of(config), run, config.train, progress)
+    return run

@@ -20,7 +20,6 @@ re-padded on load. Files of format ``/1`` (padded) still load.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +30,7 @@ from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path
 from prt_torch.models.projection import GlobalUnprojection, InputProjection, OutputUnprojection
 from prt_torch.models.regressors import REGRESSORS
+from prt_torch.rundir import RunDir
 
 FORMAT = "prt_torch.visibility_model/2"
 READABLE_FORMATS = ("prt_torch.visibility_model/1", FORMAT)
@@ -183,15 +183,15 @@ def load_model_file(path: str | Path) -> VisibilityModel:
     return model.float().eval()
 
 
-def link_default(run_dir: str | Path, kind: str) -> Path:
-    """Make ``run_dir/model.pt`` the default model: a hard link to ``models/<kind>.pt`` (atomic
-    replace; a copy where the file system has no hard links). Returns its path."""
+def link_default(run_dir: str | Path | RunDir, kind: str) -> Path:
+    """Make the run's default model file a hard link to the ``kind`` file (atomic replace; a copy where
+    the file system has no hard links). Returns its path."""
     import os
     import shutil
 
-    run_dir = Path(run_dir)
-    src, dst = model_path(run_dir, kind), run_dir / "model.pt"
-    check(src.is_file(), f"no trained {kind} model in {run_dir} ({src.name} missing)")
+    run = RunDir.of(run_dir)
+    src, dst = model_path(run, kind), run.model_path()
+    check(src.is_file(), f"no trained {kind} model in {run.path} ({src.name} missing)")
     with atomic_path(dst) as tmp:
         try:
             tmp.unlink()
@@ -201,30 +201,23 @@ def link_default(run_dir: str | Path, kind: str) -> Path:
     return dst
 
 
-def model_path(run_dir: str | Path, kind: str | None = None) -> Path:
-    """``run_dir/model.pt`` for ``kind=None``, else ``run_dir/models/<kind>.pt``."""
-    run_dir = Path(run_dir)
-    if kind is None:
-        return run_dir / "model.pt"
-    check(kind in KINDS, f"unknown model kind '{kind}' (expected one of {list(KINDS)})")
-    return run_dir / "models" / f"{kind}.pt"
+def model_path(run_dir: str | Path | RunDir, kind: str | None = None) -> Path:
+    """The default model file for ``kind=None``, else the ``kind`` file (:meth:`RunDir.model_path`)."""
+    if kind is not None:
+        check(kind in KINDS, f"unknown model kind '{kind}' (expected one of {list(KINDS)})")
+    return RunDir.of(run_dir).model_path(kind)
 
 
-def load_model(run_dir: str | Path, kind: str | None = None) -> VisibilityModel:
-    """The trained model of a run: ``kind=None`` gives the default (``model.pt``, the MLP when
-    trained). float32, eval mode, no dataset needed."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise PrtError(f"run directory not found: {run_dir}")
-    path = model_path(run_dir, kind)
+def load_model(run_dir: str | Path | RunDir, kind: str | None = None) -> VisibilityModel:
+    """The trained model of a run: ``kind=None`` gives the default (the MLP when trained). float32, eval
+    mode, no dataset needed."""
+    run = RunDir.of(run_dir).require()
+    path = model_path(run, kind)
     if not path.is_file():
-        raise PrtError(f"no trained {'default' if kind is None else kind} model in {run_dir} ({path.name} missing)")
+        raise PrtError(f"no trained {'default' if kind is None else kind} model in {run.path} ({path.name} missing)")
     return load_model_file(path)
 
 
-def load_metadata(run_dir: str | Path) -> dict[str, Any]:
-    """``run_dir/model.json`` as a dict."""
-    path = Path(run_dir) / "model.json"
-    if not path.is_file():
-        raise PrtError(f"model metadata not found: {path}")
-    return json.loads(path.read_text())
+def load_metadata(run_dir: str | Path | RunDir) -> dict[str, Any]:
+    """The run's model metadata (:meth:`RunDir.model_meta`)."""
+    return RunDir.of(run_dir).model_meta()

@@ -1,13 +1,13 @@
 """Everything the player reads from an exported run directory, checked for consistency.
 
-``runs/NAME/``: ``export.json`` (written by :func:`prt_torch.export.export_run`), ``character.npz``,
-``frames.npz`` (cluster labels / axes / bones for the local vertex frames), ``visibility.onnx``,
-``shading.onnx``, ``fused.onnx`` and ``rpo/<name>.npz``. numpy + onnxruntime only.
+``runs/NAME/`` (file names: :class:`prt_torch.rundir.RunDir`): the export metadata (written by
+:func:`prt_torch.export.export_run`), the character, the frame data (cluster labels / axes / bones for
+the vertex frames), the visibility, shading and fused ONNX graphs and the RPO catalogue. numpy +
+onnxruntime only.
 """
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,10 +16,8 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError, check
+from prt_torch.rundir import RunDir
 from prt_torch.runtime.session import OrtGraph
-
-EXPORT_JSON = "export.json"
-FRAMES_FILE = "frames.npz"
 
 
 @dataclass(frozen=True)
@@ -65,31 +63,19 @@ class RunBundle:
     graphs / metadata disagree (another character, another SH order or vertex count).
     """
 
-    def __init__(self, run_dir: str | os.PathLike[str], threads: int = 2,
+    def __init__(self, run_dir: str | os.PathLike[str] | RunDir, threads: int = 2,
                  graphs: tuple[str, ...] = ("visibility", "shading", "fused"), spinning: bool = False) -> None:
-        from prt_torch.rig.character import Character
-
-        self.run_dir = Path(run_dir)
-        check(self.run_dir.is_dir(), f"run directory not found: {self.run_dir}")
-        meta_path = self.run_dir / EXPORT_JSON
-        check(meta_path.is_file(), f"{self.run_dir} is not exported ({EXPORT_JSON} missing): run `prt export "
-                                   f"{self.run_dir}` first")
-        try:
-            self.meta: dict[str, Any] = json.loads(meta_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise PrtError(f"{meta_path}: not valid JSON ({exc.msg})") from None
+        self.run = RunDir.of(run_dir)
+        self.run_dir = self.run.path
+        self.meta: dict[str, Any] = self.run.export_meta()
         self.order = int(self.meta["sh_order"])
         self.n_vertices = int(self.meta["n_vertices"])
         self.n_features = int(self.meta["n_features"])
         self.n_terms = int(self.meta["n_terms"])
-        self.character = Character.load(self.run_dir / self.meta.get("character_file", "character.npz"))
-        h = self.character.content_hash()
-        check(h == self.meta["character_hash"],
-              f"character.npz (hash {h[:12]}) is not the character the model was exported for "
-              f"({self.meta['character_hash'][:12]})")
+        self.character = self.run.character(expect_hash=self.meta["character_hash"])
         check(self.character.num_vertices == self.n_vertices,
               f"character has {self.character.num_vertices} vertices, the model {self.n_vertices}")
-        fpath = self.run_dir / FRAMES_FILE
+        fpath = self.run.frames_path
         check(fpath.is_file(), f"frame data missing: {fpath}")
         with np.load(fpath, allow_pickle=False) as z:
             self.cluster = np.asarray(z["cluster"]).astype(np.intp)
@@ -98,12 +84,12 @@ class RunBundle:
         check(self.cluster.shape == (self.n_vertices,), f"{fpath}: cluster labels must be ({self.n_vertices},)")
         self.graphs: dict[str, OrtGraph] = {}
         for name in graphs:
-            g = OrtGraph(self.run_dir / self.meta["files"][name], threads=threads, spinning=spinning)
+            g = OrtGraph(self.run.graph_path(name), threads=threads, spinning=spinning)
             md = g.metadata
             for key, want in (("prt.character_hash", self.meta["character_hash"]),
                               ("prt.sh_order", str(self.order)), ("prt.n_vertices", str(self.n_vertices))):
                 check(md.get(key) == want, f"{g.path.name}: metadata {key}={md.get(key)!r} does not match "
-                                           f"export.json ({want!r})")
+                                           f"{self.run.export_json.name} ({want!r})")
             self.graphs[name] = g
         self.rpo_files: dict[str, str] = dict(self.meta.get("rpo_files", {}))
 
@@ -112,10 +98,10 @@ class RunBundle:
         return sorted(self.rpo_files)
 
     def rpo(self, name_or_path: str | os.PathLike[str]) -> RPOTensors:
-        """A named RPO of this run (``rpo/<name>.npz``) or an RPO file path."""
+        """A named RPO of this run (its RPO catalogue) or an RPO file path."""
         key = str(name_or_path)
         if key in self.rpo_files:
-            return load_rpo_tensors(self.run_dir / self.rpo_files[key], self.order, self.n_terms)
+            return load_rpo_tensors(self.run.rpo_path(key), self.order, self.n_terms)
         p = Path(key)
         if p.suffix == ".npz" and p.is_file():
             return load_rpo_tensors(p, self.order, self.n_terms)

@@ -15,7 +15,7 @@ Per frame (``Player.compute``)::
 Embedding::
 
     p = Player("runs/demo", env="uffizi.hdr", brdf="phong")
-    result = p.play("walk", out="walk.mp4")           # or png_dir=..., frames=..., show=True
+    result = p.play("walk", out="walk.mp4")           # or png_dir=..., max_frames=..., show=True
     img = p.render_frame(*p.compute(p.clip_locals("walk")[:1]))
 """
 
@@ -33,9 +33,10 @@ from prt_torch.errors import PrtError, check
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
 from prt_torch.player.posing import PoseBatch, Poser
-from prt_torch.runtime.session import OrtGraph
 from prt_torch.player.timing import FrameTimer
 from prt_torch.player.tonemap import ToneMap, auto_tonemap
+from prt_torch.rundir import RunDir
+from prt_torch.runtime.session import OrtGraph
 
 GRAPH_MODES = ("fused", "split", "overlap")
 
@@ -74,7 +75,7 @@ class Player:
             idle machine; steals a core from the numpy posing and from other processes on a busy one).
     """
 
-    def __init__(self, run_dir: str | os.PathLike[str], env: str | os.PathLike[str] | None = None,
+    def __init__(self, run_dir: str | os.PathLike[str] | RunDir, env: str | os.PathLike[str] | None = None,
                  brdf: str | None = None, graph: str = "fused", threads: int = 2,
                  window_size: tuple[int, int] = (480, 640), exposure: ToneMap | None = None, n_lobes: int = 3,
                  blas_threads: int | None = 1, spinning: bool = False) -> None:
@@ -278,7 +279,7 @@ class Player:
         return r.render()
 
     def play(self, clip: str, out: str | os.PathLike[str] | None = None, png_dir: str | os.PathLike[str] | None = None,
-             frames: int | None = None, fps: float | None = None, timings: str | os.PathLike[str] | None = None,
+             max_frames: int | None = None, fps: float | None = None, timings: str | os.PathLike[str] | None = None,
              show: bool = False, progress: bool = True) -> PlayResult:
         """Play ``clip``: offscreen into an MP4 (``out``) and/or PNG frames (``png_dir``), or in a window.
 
@@ -286,7 +287,7 @@ class Player:
             clip: clip name of the character.
             out: MP4 path (written atomically), or ``None``.
             png_dir: directory for ``frame_00000.png`` ..., or ``None``.
-            frames: play at most this many frames.
+            max_frames: play at most this many frames.
             fps: resample the clip (and the video) to this rate.
             timings: JSON file for per-frame step timings.
             show: an interactive window (needs a display): keys ``l`` rotate light, ``b`` next BRDF,
@@ -296,8 +297,8 @@ class Player:
         from prt_torch.player.video import VideoWriter, write_png
 
         locals_ = self.clip_locals(clip, fps)
-        n = len(locals_) if frames is None else max(0, min(int(frames), len(locals_)))
-        check(n > 0, f"clip {clip!r}: nothing to play (frames={frames})")
+        n = len(locals_) if max_frames is None else max(0, min(int(max_frames), len(locals_)))
+        check(n > 0, f"clip {clip!r}: nothing to play (max_frames={max_frames})")
         if show and not has_display():
             raise PrtError("no display for an interactive window: pass --out video.mp4 or --png DIR instead")
         rate = float(fps or self.character.clip(clip).fps)

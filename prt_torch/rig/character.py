@@ -226,6 +226,21 @@ class Character:
                 f.flush()
                 os.fsync(f.fileno())
 
+    @staticmethod
+    def load_skinning(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Only the skinning of a file written by :meth:`save`: ``parents (J,)``, ``joints (V, K)``,
+        ``weights (V, K)`` (what per-cluster joint input selection needs, without the clips)."""
+        path = Path(path)
+        if not path.is_file():
+            raise PrtError(f"the skinning of the character is needed: {path} not found")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                missing = [k for k in ("parents", "joints", "weights") if k not in z.files]
+                check(not missing, f"{path}: no {', '.join(missing)} array")
+                return np.asarray(z["parents"]), np.asarray(z["joints"]), np.asarray(z["weights"])
+        except (OSError, ValueError) as e:
+            raise PrtError(f"not a character .npz file: {path} ({type(e).__name__})") from None
+
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Character:
         """Read a character written by :meth:`save`."""

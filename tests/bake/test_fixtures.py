@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from prt_torch.rig.vertex_frames import vertex_frames
 from prt_torch.bake.store import open_dataset
+from prt_torch.rig.vertex_frames import vertex_frames
 
 
 def test_small_dataset_contract(small_dataset: Path) -> None:

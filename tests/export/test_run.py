@@ -19,8 +19,8 @@ from prt_torch.errors import PrtError
 from prt_torch.export.onnx_file import opset_of, read_metadata
 from prt_torch.export.run import export_run
 from prt_torch.models.visibility import load_model
-from prt_torch.runtime.session import OrtGraph
 from prt_torch.rig.character import Character
+from prt_torch.runtime.session import OrtGraph
 
 
 def _heldout(run: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import torch
 
-from prt_torch.metrics import vis_rel_err
+from prt_torch.bake.store import open_dataset
 from prt_torch.fit.config import TrainConfig
-from prt_torch.fit.data import dataset_info, load_split
 from prt_torch.fit.train import fit_ridge_kind, predict, reduce_training, train_dataset
+from prt_torch.metrics import vis_rel_err
 from prt_torch.models import KINDS, load_metadata, load_model
 from prt_torch.models.storage import compact_floats, storage_table
 
@@ -30,8 +30,8 @@ from prt_torch.models.storage import compact_floats, storage_table
 def run_data(small_run: Path) -> dict:
     meta = load_metadata(small_run)
     ds = Path(meta["dataset"])
-    return {"meta": meta, "dataset": ds, "info": dataset_info(ds), "train": load_split(ds, "train"),
-            "heldout": load_split(ds, "heldout"),
+    info = open_dataset(ds)
+    return {"meta": meta, "dataset": ds, "info": info, "train": info.split("train"), "heldout": info.split("heldout"),
             "metrics": json.loads((small_run / "metrics.json").read_text())}
 
 

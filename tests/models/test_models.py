@@ -118,11 +118,11 @@ def test_global_output_variant_trains_loads_and_counts(synthetic_dataset: Path, 
 def test_files_store_no_padding_and_default_is_a_link(small_run: Path, tmp_path: Path) -> None:
     """The saved basis holds exactly sum_g K_g V_g C numbers (counted from the cluster sizes of the
     metadata, not from the saver), the file round-trips exactly, and model.pt is the same file."""
-    from prt_torch.fit.data import dataset_info
+    from prt_torch.bake.store import open_dataset
     from prt_torch.models import save_model
 
     meta = load_metadata(small_run)
-    labels = dataset_info(meta["dataset"]).cluster
+    labels = open_dataset(meta["dataset"]).cluster
     sizes = np.bincount(labels - labels.min())
     sizes = sizes[sizes > 0] * meta["n_coeffs"]
     dims = np.asarray(meta["output_dims"])

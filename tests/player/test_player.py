@@ -24,7 +24,7 @@ def test_fresh_process_plays_headless_without_torch(tiny_run: Path, tmp_path: Pa
         import json, sys
         from prt_torch.player import Player
         p = Player({str(tiny_run)!r}, brdf="lambert", window_size=(120, 96))
-        res = p.play("wave", png_dir={str(tmp_path / "png")!r}, out={str(tmp_path / "wave.mp4")!r}, frames=3,
+        res = p.play("wave", png_dir={str(tmp_path / "png")!r}, out={str(tmp_path / "wave.mp4")!r}, max_frames=3,
                      timings={str(tmp_path / "t.json")!r}, progress=False)
         p.close()
         print(json.dumps({{"torch": "torch" in sys.modules, "frames": res.frames}}))
@@ -131,7 +131,7 @@ def test_errors_are_one_line(tiny_run: Path, tmp_path: Path) -> None:
             (lambda: p.visibility(np.full((1, p.bundle.n_features), np.nan, np.float32)), "NaN"),
             (lambda: p.visibility(np.zeros((1, p.bundle.n_features + 1), np.float32)), "axis 1"),
             (lambda: p.set_brdf("velvet"), "unknown BRDF"),
-            (lambda: p.play("no_such_clip", frames=1), "unknown clip"),
+            (lambda: p.play("no_such_clip", max_frames=1), "unknown clip"),
         ]:
             with pytest.raises(PrtError, match=msg) as exc:
                 call()

@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, vertex_frames
 from prt_torch.errors import PrtError
 from prt_torch.player.lighting import hemisphere_visibility, lighting_from_sh, sinc_window
 from prt_torch.player.posing import Poser
 from prt_torch.player.tonemap import auto_tonemap, to_colors
 from prt_torch.rig.builtin import make_character
+from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, vertex_frames
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.errors import PrtError
+from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 
 
 def two_bone_arm() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -149,8 +149,8 @@ def test_builtin_walk_frames_are_coherent() -> None:
     by at most ``2 |da| + 2 |dn|``). (b) Stated angle: at least 99% of
     vertex steps turn the tangent by at most 20 degrees.
     """
-    from prt_torch.rig.vertex_frames import FALLBACK_BELOW
     from prt_torch.rig.builtin import make_character
+    from prt_torch.rig.vertex_frames import FALLBACK_BELOW
 
     ch = make_character(0.05)
     w = ch.dense_weights
