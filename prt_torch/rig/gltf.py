@@ -9,7 +9,15 @@ What is read:
   data-URI or external buffers;
 * inverse bind matrices; per the spec the skinned mesh node's own transform is ignored;
 * animations sampled at a chosen fps with ``STEP``, ``LINEAR`` (quaternion slerp) and
-  ``CUBICSPLINE`` (Hermite with in/out tangents, quaternions renormalised) samplers.
+  ``CUBICSPLINE`` (Hermite with in/out tangents, quaternions renormalised) samplers; an animation
+  becomes a clip when at least one of its channels targets a joint of the skin.
+
+Clip names (:func:`clip_names`; ``prt info FILE`` lists them): a named animation keeps its ``name``
+verbatim; an unnamed one (no ``name``, or an empty one) is ``animation_<i>``, ``i`` its 0-based index
+in the file's ``animations`` array (skipped animations count, so the name does not depend on the
+others). Where several clips end up with the same name, the first in file order keeps it and each
+later one becomes ``<name>_<k>``, ``k = 2, 3, ...`` the smallest number giving a name that no clip of
+the file has; a name that occurs once is never changed.
 
 Conventions: the y-up glTF world is converted to z-up by ``C: (x, y, z) -> (x, -z, y)`` applied at
 the root. The skeleton keeps only the skin's joints (sorted so parents come first); static
@@ -159,6 +167,28 @@ def _sample(times: np.ndarray, values: np.ndarray, interp: str, t: np.ndarray, i
     return out
 
 
+def clip_names(animations: list[tuple[int, str | None]]) -> list[str]:
+    """Clip names of glTF animations ``(index in the file's animations array, name or None)``, in file order.
+
+    The module docstring states the rule: ``name`` verbatim, else ``animation_<index>``; the later of
+    equal names become ``<name>_<k>`` with the smallest ``k >= 2`` not taken by any clip name.
+    """
+    base = [name if name else f"animation_{index}" for index, name in animations]
+    taken = set(base)
+    out: list[str] = []
+    used: set[str] = set()
+    for name in base:
+        if name in used:
+            k = 2
+            while f"{name}_{k}" in taken:
+                k += 1
+            name = f"{name}_{k}"
+            taken.add(name)
+        used.add(name)
+        out.append(name)
+    return out
+
+
 def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None = None,
               height: float | None = None) -> Character:
     """Load a skinned glTF 2.0 character (``.glb`` or ``.gltf``) with its animations sampled at ``fps``.
@@ -297,11 +327,13 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
     # -- animations -------------------------------------------------------------------------------
     rest_trs = [_node_trs(nodes[n]) for n in jnodes]
     clips: dict[str, Clip] = {}
-    for ai, anim in enumerate(gltf.animations or []):
+    animations = [(ai, anim) for ai, anim in enumerate(gltf.animations or [])
+                  if any(c.target.node in node_to_joint and c.target.path in ("translation", "rotation", "scale")
+                         for c in anim.channels)]
+    names = clip_names([(ai, anim.name) for ai, anim in animations])
+    for (ai, anim), cname in zip(animations, names, strict=True):
         chans = [c for c in anim.channels if c.target.node in node_to_joint and c.target.path in
                  ("translation", "rotation", "scale")]
-        if not chans:
-            continue
         data = []
         for c in chans:
             smp = anim.samplers[c.sampler]
@@ -325,9 +357,6 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
             else:
                 sc[:, j] = _sample(times, out, interp, t, False)
         local = prefix[None] @ trs_matrix(tr, quat_to_matrix(ro), sc)
-        cname = anim.name or f"animation_{ai}"
-        while cname in clips:
-            cname += "_"
         clips[cname] = Clip(cname, fps, local)
 
     character = Character(name or path.stem, [nodes[n].name or f"joint_{n}" for n in jnodes], parents, bind_local,

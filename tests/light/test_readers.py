@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import OpenEXR  # a base dependency: .exr reading is part of every install
 import pytest
 
 from prt_torch.errors import PrtError
@@ -81,7 +82,6 @@ def test_hdr_roundtrip_orientation_and_channels(tmp_path: Path) -> None:
 
 
 def test_exr_rgb_half_and_luminance(tmp_path: Path) -> None:
-    OpenEXR = pytest.importorskip("OpenEXR")
     img = _asym_image()
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     p = tmp_path / "rgb.exr"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
 from prt_torch.errors import PrtError
-from prt_torch.rig.gltf import load_gltf
+from prt_torch.rig.gltf import clip_names, load_gltf
 from tests.rig.gltf_synth import GltfBuilder
 
 C = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])  # y-up -> z-up
@@ -223,6 +224,41 @@ def test_unknown_clip_name(tmp_path: Path) -> None:
     c = load_gltf(write_rig(tmp_path / "rig.glb"))
     with pytest.raises(PrtError, match="unknown clip 'dance'"):
         c.pose("dance")
+
+
+def write_renamed_rig(path: Path, entries: list[tuple[str, str | None]]) -> Path:
+    """The synthetic rig as ``.gltf`` with its animations replaced by ``entries``: ``(source, name)``, where
+    ``source`` is one of ``ANIMS`` (copied) or ``"armature"`` (a channel on the non-joint node 2 only), and
+    ``name`` None drops the ``name`` key."""
+    doc = json.loads(write_rig(path.with_suffix(".gltf")).read_text())
+    by_name = {a["name"]: a for a in doc["animations"]}
+    anims = []
+    for source, name in entries:
+        a = json.loads(json.dumps(by_name["lin" if source == "armature" else source]))
+        if source == "armature":
+            a["channels"] = [{"sampler": 1, "target": {"node": 2, "path": "translation"}}]
+        a.pop("name")
+        if name is not None:
+            a["name"] = name
+        anims.append(a)
+    doc["animations"] = anims
+    out = path.with_suffix(".gltf")
+    out.write_text(json.dumps(doc))
+    return out
+
+
+def test_clip_naming_rule(tmp_path: Path) -> None:
+    entries = [("lin", None), ("step", "A"), ("cubic", "A"), ("lin", "A_2"), ("armature", "static"), ("lin", ""),
+               ("step", "animation_0")]
+    c = load_gltf(write_renamed_rig(tmp_path / "named", entries))
+    # unnamed -> animation_<index in the file>; the later of equal names -> <name>_<k>, k >= 2 free; names that
+    # occur once are kept; an animation that moves no joint is no clip (but keeps its index)
+    assert list(c.clips) == ["animation_0", "A", "A_3", "A_2", "animation_5", "animation_0_2"]
+    assert [c.clips[n].num_frames for n in c.clips] == [31, 25, 37, 31, 31, 25]  # 1 s, 0.8 s, 1.2 s at 30 fps
+    assert all(c.clips[n].name == n for n in c.clips)
+    assert clip_names([(0, "Walk"), (1, None), (2, "Walk"), (3, "Walk"), (4, "Walk_2")]) == \
+        ["Walk", "animation_1", "Walk_3", "Walk_4", "Walk_2"]
+    assert clip_names([]) == []
 
 
 # -- shared assets ----------------------------------------------------------------------------------
