@@ -7,7 +7,7 @@ Which library reads what:
 
 * ``.hdr`` / ``.pic`` (Radiance RGBE, flat or RLE): OpenCV, ``cv2.imread(path, cv2.IMREAD_UNCHANGED)``,
   which returns BGR float32 - converted to RGB here. (imageio would need the FreeImage plugin.)
-* ``.exr``: the ``OpenEXR`` Python package (3.x, ``OpenEXR.File``) when installed (the ``exr`` extra);
+* ``.exr``: the ``OpenEXR`` Python package (3.x, ``OpenEXR.File``; a base dependency);
   otherwise OpenCV with ``OPENCV_IO_ENABLE_OPENEXR=1`` (set here before cv2 is first imported), which works
   only where the OpenCV build includes OpenEXR (the opencv-python-headless wheels do not).
   RGB(A) or a single luminance channel (``Y``) are accepted; alpha is dropped.
@@ -73,7 +73,7 @@ def read_exr(path: str | os.PathLike[str]) -> np.ndarray:
     p = _check_file(path)
     try:
         import OpenEXR
-    except ImportError:  # pragma: no cover - depends on the optional extra
+    except ImportError:  # pragma: no cover - a base dependency, missing only in a broken install
         OpenEXR = None
     if OpenEXR is not None:
         try:
@@ -92,7 +92,7 @@ def read_exr(path: str | os.PathLike[str]) -> np.ndarray:
         return _as_rgb(np.asarray(img, dtype=np.float32), p)
     img = _cv2().imread(str(p), -1)  # pragma: no cover
     if img is None:  # pragma: no cover
-        raise PrtError(f"{p.name}: cannot read OpenEXR: install the OpenEXR Python package (extra 'exr'); "
+        raise PrtError(f"{p.name}: cannot read OpenEXR: install the OpenEXR Python package (pip install OpenEXR); "
                        f"this OpenCV build has no EXR codec or the file is not OpenEXR")
     if img.ndim == 3 and img.shape[2] >= 3:  # pragma: no cover
         img = img[..., [2, 1, 0]]

@@ -174,3 +174,29 @@ def test_builtin_walk_frames_are_coherent() -> None:
     assert good.mean() > 0.9
     assert np.all(turn[good] <= bound[good] + 1e-3)  # + float32 rounding of the stored frames
     assert np.mean(np.degrees(turn) <= 20.0) >= 0.99
+
+
+def test_fast_path_equals_reference_including_fallback_and_degenerate() -> None:
+    """The player's float32 vertex-last implementation (``vertex_frames_soa``) is the same rule as the
+    float64 reference: random normals and bone rotations, plus vertices whose cluster axis is (nearly)
+    parallel to the normal (the fallback blend) and exactly parallel to both axes' tangent combination."""
+    from prt_torch.rig.vertex_frames import fallback_axes, vertex_frames_soa
+
+    rng = np.random.default_rng(3)
+    b, v, kc, j = 3, 500, 5, 4
+    axes = rng.normal(size=(kc, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    bones = rng.integers(0, j, size=kc)
+    labels = rng.integers(0, kc, size=v)
+    rot = Rotation.random(b * j, random_state=4).as_matrix().reshape(b, j, 3, 3)
+    n = rng.normal(size=(b, v, 3))
+    carried = np.einsum("bvij,vj->bvi", rot[:, bones[labels]], axes[labels])
+    n[:, :50] = carried[:, :50] + 0.05 * rng.normal(size=(b, 50, 3))  # axis nearly along the normal: fallback
+    n[:, 50:60] = carried[:, 50:60]  # exactly along it
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    ref = vertex_frames(n, rot, labels, axes, bones)  # (B, V, 3, 3)
+    s1, s3 = np.empty((b, v), np.float32), np.empty((b, 3, v), np.float32)
+    nrm = np.ascontiguousarray(n.transpose(0, 2, 1), dtype=np.float32)
+    fast = vertex_frames_soa(nrm, rot[:, bones], labels.astype(np.intp), np.stack([axes, fallback_axes(axes)]), s1, s3)
+    fast = fast.transpose(0, 2, 1).reshape(b, v, 3, 3)
+    assert np.abs(fast - ref).max() < 2e-4
