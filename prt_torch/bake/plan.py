@@ -1,21 +1,32 @@
 """Which frames a run bakes: the character and its posed clips, from the config's ``character`` section.
 
 Clip order in the dataset: ``train_clips``, then ``"random"`` (``random_poses`` random poses,
-training; ``random_mode`` picks the sampler of :mod:`prt_torch.rig.random_pose`, whose ``"sparse"``
-base poses come from the bind pose and ``train_clips`` only, never the held-out clips), then
-``heldout_clips``. Splits: ``train`` = train clips +
-random; ``heldout`` = held-out clips. Named clips are resampled at ``character.fps``.
+training; ``random_mode`` picks the sampler of :mod:`prt_torch.rig.random_pose`), then
+``heldout_clips``. Splits: ``train`` = train clips + random; ``heldout`` = held-out clips. Named
+clips are resampled at ``character.fps``.
+
+Each ``train_clips``/``heldout_clips`` entry (a clip name, or a frame range of a clip,
+:class:`prt_torch.rig.config.ClipRange`) is one dataset clip with its own name; its ``frame_index``
+is the frame's index in the whole (resampled) source clip. One clip may be split between training
+and held-out sets; no frame may be used twice.
+
+:func:`make_plan` is the ONE place that builds the random poses' source clips from the split: the
+training entries' frames only (every mode: uniform without joint limits perturbs them, sparse uses
+them as base poses), never a held-out clip or the held-out range of a split clip.
 """
 
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from prt_torch.errors import PrtError
+from prt_torch.rig.clip import Clip
+from prt_torch.rig.config import ClipRange, as_clip_range
 
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
@@ -77,44 +88,93 @@ def load_character(cfg: RunConfig) -> Character:
     return load_gltf(path, fps=ch.fps, height=ch.height)
 
 
+@dataclass
+class PlanClip:
+    """One ``train_clips``/``heldout_clips`` entry resolved against the character.
+
+    Attributes:
+        name: the dataset clip name.
+        source: the character clip it is cut from.
+        frame_index: ``(F',)`` int64 indices into the source clip resampled at ``character.fps``.
+        clip: those frames as a :class:`Clip` (``local (F', J, 4, 4)``), named ``name``.
+    """
+
+    name: str
+    source: str
+    frame_index: np.ndarray
+    clip: Clip
+
+
+def resolve_clips(character: Character, entries: Sequence[str | ClipRange], fps: float, key: str) -> list[PlanClip]:
+    """Resolve config entries (clip names or :class:`ClipRange`) to frames of the character's clips at ``fps``.
+
+    Unknown clips and ranges that select no frame are one-line :class:`PrtError` naming ``key``.
+    """
+    out = []
+    for i, entry in enumerate(entries):
+        r = as_clip_range(entry)
+        if r.clip not in character.clips:
+            raise PrtError(f"unknown clip {r.clip!r} in {key}[{i}] for character {character.name!r}; available: "
+                           f"{sorted(character.clips)}")
+        full = character.clips[r.clip]
+        if fps != full.fps:  # as Character.pose(name, fps=...)
+            full = full.resample(fps)
+        idx = r.frame_indices(full.num_frames, fps)
+        if idx.size == 0:
+            raise PrtError(f"{key}[{i}]: {r.dataset_name!r} selects no frame of clip {r.clip!r} "
+                           f"({full.num_frames} frames at {fps:g} fps)")
+        out.append(PlanClip(r.dataset_name, r.clip, idx, Clip(r.dataset_name, full.fps, full.local[idx])))
+    return out
+
+
+def _check_disjoint(train: list[PlanClip], heldout: list[PlanClip]) -> None:
+    """No dataset clip name twice, and no frame of a source clip in two entries (train vs held-out above all)."""
+    entries = [("train_clips", c) for c in train] + [("heldout_clips", c) for c in heldout]
+    for i, (key, c) in enumerate(entries):
+        for other_key, o in entries[:i]:
+            if o.name == c.name:
+                raise PrtError(f"clip listed twice in train_clips/heldout_clips: {c.name!r}")
+            if o.source == c.source and np.intersect1d(o.frame_index, c.frame_index).size:
+                raise PrtError(f"{key} entry {c.name!r} and {other_key} entry {o.name!r} share frames of clip "
+                               f"{c.source!r}")
+
+
 def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
-    """Pose every frame the config asks for (validated: unknown clips and empty sets are errors)."""
+    """Pose every frame the config asks for (validated: unknown clips, empty or overlapping ranges and empty
+    sets are errors). The random poses' source clips are the training entries' frames, nothing else."""
     from prt_torch.rig.random_pose import random_poses
 
     character = load_character(cfg) if character is None else character
     ch = cfg.character
-    train = list(ch.train_clips)
-    heldout = list(ch.heldout_clips)
-    for name in train + heldout:
-        if name not in character.clips:
-            raise PrtError(f"unknown clip {name!r} for character {character.name!r}; available: "
-                           f"{sorted(character.clips)}")
-    dup = sorted({n for n in train + heldout if (train + heldout).count(n) > 1})
-    if dup:
-        raise PrtError(f"clip listed twice in train_clips/heldout_clips: {dup[0]!r}")
-    if RANDOM_CLIP in character.clips and ch.random_poses:
+    train = resolve_clips(character, ch.train_clips, ch.fps, "train_clips")
+    heldout = resolve_clips(character, ch.heldout_clips, ch.fps, "heldout_clips")
+    _check_disjoint(train, heldout)
+    if ch.random_poses and (RANDOM_CLIP in character.clips or RANDOM_CLIP in [c.name for c in train + heldout]):
         raise PrtError(f"character has a clip named {RANDOM_CLIP!r}, which clashes with the random poses")
     if not train and not ch.random_poses:
         raise PrtError("nothing to train on: set character.train_clips or character.random_poses")
-    names, poses = [], []
-    for name in train:
-        names.append(name)
-        poses.append(character.pose(name, fps=ch.fps))
+    names = [c.name for c in train]
+    poses = [character.pose(c.clip) for c in train]
+    frame_index = [c.frame_index for c in train]
     if ch.random_poses:
         names.append(RANDOM_CLIP)
-        rnd = random_poses(character, ch.random_poses, seed=ch.seed, fps=ch.fps, mode=ch.random_mode,
-                           base_clips=train, base_clip_prob=ch.random_base_prob, max_chains=ch.random_max_chains,
-                           segment=ch.random_segment, near_base=ch.random_near_base)
+        sources = [c.clip for c in train]  # the split's training frames: the only motion random poses start from
+        rnd = random_poses(character, ch.random_poses, seed=ch.seed, perturb_deg=ch.random_perturb_deg, fps=ch.fps,
+                           mode=ch.random_mode, base_clips=sources, base_clip_prob=ch.random_base_prob,
+                           max_chains=ch.random_max_chains, segment=ch.random_segment,
+                           near_base=ch.random_near_base)
         poses.append(character.pose(rnd))
-    for name in heldout:
-        names.append(name)
-        poses.append(character.pose(name, fps=ch.fps))
+        frame_index.append(np.arange(rnd.num_frames))
+    names += [c.name for c in heldout]
+    poses += [character.pose(c.clip) for c in heldout]
+    frame_index += [c.frame_index for c in heldout]
     clip_id = np.concatenate([np.full(p.num_frames, i, dtype=np.int32) for i, p in enumerate(poses)])
-    frame_index = np.concatenate([np.arange(p.num_frames, dtype=np.int32) for p in poses])
+    frame_idx = np.concatenate(frame_index).astype(np.int32)
     pose = np.concatenate([p.features for p in poses]).astype(np.float32)
     skin = np.concatenate([p.skin for p in poses]).astype(np.float64)
     if not (np.isfinite(pose).all() and np.isfinite(skin).all()):
         raise PrtError("posed skeleton has NaN or Inf (pose features or skin matrices)")
-    splits = {"train": train + ([RANDOM_CLIP] if ch.random_poses else []), "heldout": heldout}
+    splits = {"train": [c.name for c in train] + ([RANDOM_CLIP] if ch.random_poses else []),
+              "heldout": [c.name for c in heldout]}
     return BakePlan(character=character, clip_names=names, splits=splits, clip_id=clip_id,
-                    frame_index=frame_index, pose=pose, skin=skin)
+                    frame_index=frame_idx, pose=pose, skin=skin)

@@ -2,9 +2,149 @@
 
 from __future__ import annotations
 
-from typing import Literal
+import math
+import re
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationInfo, field_validator, model_validator
+
+_INT = r"\s*(-?\d+)?\s*"
+_NUM = r"\s*([^:\s]+)?\s*"
+
+
+def _parse_frames(text: str) -> tuple[int | None, int | None]:
+    """``"a:b"`` (either end optional, python slice semantics, negative = from the end) -> ``(a, b)``."""
+    m = re.fullmatch(f"{_INT}:{_INT}", text)
+    if m is None:
+        raise ValueError(f"bad frame range {text!r}: expected 'start:stop' (integers, either optional)")
+    return tuple(None if g is None else int(g) for g in m.groups())  # type: ignore[return-value]
+
+
+def _parse_times(text: str) -> tuple[float | None, float | None]:
+    """``"t0:t1"`` seconds (either end optional, finite, >= 0) -> ``(t0, t1)``."""
+    m = re.fullmatch(f"{_NUM}:{_NUM}", text)
+    out: list[float | None] = []
+    for g in m.groups() if m is not None else ("?",):
+        try:
+            t = None if g is None else float(g)
+        except ValueError:
+            t = -1.0
+        if t is not None and not (math.isfinite(t) and t >= 0):
+            raise ValueError(f"bad time range {text!r}: expected 't0:t1' seconds (numbers >= 0, either optional)")
+        out.append(t)
+    return out[0], out[1]
+
+
+class ClipRange(BaseModel):
+    """A frame range of one of the character's clips, used as its own dataset clip.
+
+    ``{clip: Walk, frames: "0:28"}``: a python slice ``start:stop`` of the clip's frame indices at
+    ``character.fps`` (after resampling; either end optional, negative counts from the end; no step).
+    ``{clip: Walk, times: "0.5:1.2"}``: the frames ``f`` with ``t0 <= f / fps < t1`` (seconds, either end
+    optional). Neither: the whole clip. ``name``: the dataset clip name (default ``Walk[0:28]``,
+    ``Walk[0.5s:1.2s]``, or ``Walk`` for the whole clip).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    clip: str = Field(min_length=1)
+    frames: str | None = None
+    times: str | None = None
+    name: str | None = Field(default=None, min_length=1)
+
+    @field_validator("frames")
+    @classmethod
+    def _check_frames(cls, v: str | None) -> str | None:
+        if v is not None:
+            start, stop = _parse_frames(v)
+            if start is not None and stop is not None and (start >= 0) == (stop >= 0) and stop <= start:
+                raise ValueError(f"empty frame range {v!r}")
+        return v
+
+    @field_validator("times")
+    @classmethod
+    def _check_times(cls, v: str | None) -> str | None:
+        if v is not None:
+            t0, t1 = _parse_times(v)
+            if t0 is not None and t1 is not None and t1 <= t0:
+                raise ValueError(f"empty time range {v!r}")
+        return v
+
+    @model_validator(mode="after")
+    def _one_range(self) -> ClipRange:
+        if self.frames is not None and self.times is not None:
+            raise ValueError(f"clip {self.clip!r}: give either 'frames' or 'times', not both")
+        return self
+
+    @property
+    def dataset_name(self) -> str:
+        """The name of this entry's clip in the dataset."""
+        if self.name is not None:
+            return self.name
+        if self.frames is not None:
+            start, stop = _parse_frames(self.frames)
+            return f"{self.clip}[{'' if start is None else start}:{'' if stop is None else stop}]"
+        if self.times is not None:
+            t0, t1 = _parse_times(self.times)
+            return f"{self.clip}[{'' if t0 is None else f'{t0:g}s'}:{'' if t1 is None else f'{t1:g}s'}]"
+        return self.clip
+
+    def frame_slice(self, fps: float) -> slice:
+        """The frame indices of this entry (at ``fps``) as a python slice of the clip's frames."""
+        if self.times is not None:
+            t0, t1 = _parse_times(self.times)
+            return slice(None if t0 is None else math.ceil(t0 * fps - 1e-9),
+                         None if t1 is None else math.ceil(t1 * fps - 1e-9))
+        if self.frames is not None:
+            return slice(*_parse_frames(self.frames))
+        return slice(None)
+
+    def frame_indices(self, n_frames: int, fps: float) -> np.ndarray:
+        """``(F',)`` int64 indices into a clip of ``n_frames`` frames at ``fps`` (may be empty)."""
+        return np.arange(n_frames, dtype=np.int64)[self.frame_slice(fps)]
+
+
+def _entry_tag(v: Any) -> str:
+    return "range" if isinstance(v, dict | ClipRange) else "name"
+
+
+#: a ``train_clips``/``heldout_clips`` entry: a clip name (the whole clip) or a :class:`ClipRange`
+ClipEntry = Annotated[Annotated[str, Tag("name")] | Annotated[ClipRange, Tag("range")], Discriminator(_entry_tag)]
+
+
+def as_clip_range(entry: str | ClipRange) -> ClipRange:
+    """A plain clip name as the :class:`ClipRange` of the whole clip; a :class:`ClipRange` unchanged."""
+    return ClipRange(clip=entry) if isinstance(entry, str) else entry
+
+
+def _static_bounds(entry: ClipRange, fps: float) -> tuple[int, float] | None:
+    """``[start, stop)`` frame bounds known without the clip's length, or ``None`` (negative indices)."""
+    s = entry.frame_slice(fps)
+    start = 0 if s.start is None else s.start
+    stop = math.inf if s.stop is None else s.stop
+    return None if start < 0 or stop < 0 else (start, stop)
+
+
+def _check_entries(entries: list[str | ClipRange], others: list[str | ClipRange], key: str, other_key: str,
+                   fps: float | None) -> None:
+    """Empty ranges, duplicate dataset names and overlapping ranges of one clip (those known statically)."""
+    fps = 30.0 if fps is None else fps
+    ranges = [as_clip_range(e) for e in entries]
+    prior = [as_clip_range(e) for e in others]
+    for i, r in enumerate(ranges):
+        b = _static_bounds(r, fps)
+        if b is not None and b[1] <= b[0]:
+            raise ValueError(f"{key}[{i}]: {r.dataset_name!r} selects no frame at {fps:g} fps")
+        for where, other in [(key, o) for o in ranges[:i]] + [(other_key, o) for o in prior]:
+            if other.dataset_name == r.dataset_name:
+                raise ValueError(f"{key}[{i}]: clip name {r.dataset_name!r} is already used in {where}")
+            if other.clip != r.clip:
+                continue
+            c = _static_bounds(other, fps)
+            if b is not None and c is not None and b[0] < c[1] and c[0] < b[1]:
+                raise ValueError(f"{key}[{i}]: {r.dataset_name!r} overlaps {other.dataset_name!r} in {where} "
+                                 f"(frames of one clip must not be used twice)")
 
 
 class CharacterConfig(BaseModel):
@@ -12,6 +152,17 @@ class CharacterConfig(BaseModel):
 
     ``source`` is ``"builtin"`` (the procedural humanoid) or a path to a ``.glb``/``.gltf`` file
     (relative paths are resolved against the config file's directory).
+
+    ``train_clips`` / ``heldout_clips`` entries are clip names (the whole clip) or frame ranges of a
+    clip, ``{clip: Walk, frames: "0:28"}`` / ``{clip: Walk, times: "0.5:"}`` (optional ``name:``; see
+    :class:`ClipRange`), each its own dataset clip; one clip may be split between the two sets, but
+    no frame may be used twice (overlaps are errors). Random training poses are built from the
+    training entries' frames only (:func:`prt_torch.bake.plan.make_plan`).
+
+    ``random_perturb_deg`` is the perturbation range of random poses of characters WITHOUT joint
+    limits (every glTF/BVH character): each non-root joint of a training frame is rotated by up to
+    this many degrees about a random axis (``random_mode: uniform``), or the joints of the moved
+    chains are (``sparse``). Characters with joint limits (the built-in humanoid) ignore it.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -20,8 +171,8 @@ class CharacterConfig(BaseModel):
     density: float = Field(default=1.0, gt=0)  # built-in character only: vertex density factor
     height: float | None = Field(default=None, gt=0)  # glTF only: rescale to this height (load_gltf(height=...))
     fps: float = Field(default=30.0, gt=0)  # sampling rate for clips
-    train_clips: list[str] = Field(default_factory=list)
-    heldout_clips: list[str] = Field(default_factory=list)
+    train_clips: list[ClipEntry] = Field(default_factory=list)
+    heldout_clips: list[ClipEntry] = Field(default_factory=list)
     random_poses: int = Field(default=0, ge=0)  # random poses within joint limits added to training
     # how they are sampled (prt_torch.rig.random_pose): "uniform" moves every joint; "sparse" moves
     # 1..random_max_chains joint chains of the bind pose or (probability random_base_prob) of a random
@@ -31,4 +182,18 @@ class CharacterConfig(BaseModel):
     random_base_prob: float = Field(default=0.5, ge=0.0, le=1.0)
     random_segment: int = Field(default=1, ge=1)
     random_near_base: float = Field(default=0.0, ge=0.0, le=1.0)  # sparse: P(moved joint lands near its base)
+    random_perturb_deg: float = Field(default=20.0, ge=0.0, le=180.0)  # no joint limits: perturbation range
     seed: int = 0
+
+    @field_validator("train_clips")
+    @classmethod
+    def _check_train(cls, v: list[str | ClipRange], info: ValidationInfo) -> list[str | ClipRange]:
+        _check_entries(v, [], "train_clips", "train_clips", info.data.get("fps"))
+        return v
+
+    @field_validator("heldout_clips")
+    @classmethod
+    def _check_heldout(cls, v: list[str | ClipRange], info: ValidationInfo) -> list[str | ClipRange]:
+        _check_entries(v, list(info.data.get("train_clips", [])), "heldout_clips", "train_clips",
+                       info.data.get("fps"))
+        return v

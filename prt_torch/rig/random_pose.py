@@ -9,9 +9,11 @@ Two modes (``random_poses(..., mode=...)``), both deterministic in ``seed``:
   as ``R_bind @ R_x(a_x) @ R_z(a_z) @ R_y(a_y)``; joint translations and the root stay at the bind
   pose. Independent sampling can produce self-intersecting poses (e.g. an arm through the torso);
   that is accepted (visibility is still well defined).
-* Characters without limits (glTF/BVH): each random pose starts from a random frame of a random
-  clip and every non-root joint's rotation is perturbed by a random rotation of angle up to
-  ``perturb_deg`` about a uniformly random axis; the root keeps its bind transform.
+* Characters without limits (glTF/BVH): each random pose starts from a uniformly random frame of a
+  uniformly random clip of ``base_clips`` (the source clips the caller passes: TRAINING clips or
+  training frame ranges only, never the character's other clips) and every non-root joint's rotation
+  is perturbed by a random rotation of angle up to ``perturb_deg`` about a uniformly random axis; the
+  root keeps its bind transform. Without source clips this is an error.
 
 ``"sparse"`` moves only a FEW joint chains per pose, so that every limb's configuration space is
 covered without teaching a cluster correlations with far-away limbs that real motion never has:
@@ -30,6 +32,11 @@ covered without teaching a cluster correlations with far-away limbs that real mo
   by ``segment`` frames of per-joint geodesic (slerp) rotation and linear translation interpolation,
   so CV folds blocked by contiguous frame ranges hold out whole motions. ``segment = 1`` gives
   independent poses.
+
+No mode samples from ``character.clips`` on its own: every clip frame a random pose derives from
+comes from ``base_clips`` (``Clip`` objects, or names looked up in ``character.clips``), so held-out
+motion cannot leak into training (the bake plan,
+:func:`prt_torch.bake.plan.make_plan`, is the one place that builds these sources from the split).
 """
 
 from __future__ import annotations
@@ -183,12 +190,17 @@ def random_poses(character: Character, n: int, seed: int = 0, perturb_deg: float
                  name: str = "random", fps: float = 30.0, mode: str = "uniform",
                  base_clips: Sequence[str | Clip] = (), base_clip_prob: float = 0.5, max_chains: int = 3,
                  segment: int = 1, near_base: float = 0.0) -> Clip:
-    """``n`` random poses of ``character`` as a :class:`Clip`; deterministic in ``seed``.
+    """``n`` random poses of ``character`` as a :class:`Clip` with ``local (n, J, 4, 4)``; deterministic in ``seed``.
 
-    ``mode="uniform"``: independent frames moving every joint (``base_clips`` etc. unused).
+    ``base_clips`` are the SOURCE clips of every mode (names of the character's clips or :class:`Clip`
+    objects, e.g. a training frame range of a clip; pass training motion only): the only clip frames a
+    random pose may start from. Nothing else of the character's clips is ever read.
+
+    ``mode="uniform"``: independent frames moving every joint: within the joint limits (``base_clips``
+    unused), or, without limits, a random frame of ``base_clips`` with every non-root joint perturbed by
+    up to ``perturb_deg`` degrees (no source clip: :class:`PrtError`).
     ``mode="sparse"``: each key pose moves ``1..max_chains`` joint chains of a base pose (the bind
-    pose or, with probability ``base_clip_prob``, a random frame of ``base_clips``: names of the
-    character's clips or :class:`Clip` objects; pass training clips only), key poses joined by
+    pose or, with probability ``base_clip_prob``, a random frame of ``base_clips``), key poses joined by
     ``segment`` interpolated frames (``1``: independent poses); ``near_base``: the probability that a
     moved joint lands between its base angles and the uniform sample (joint limits only). See the
     module docstring.
@@ -201,10 +213,12 @@ def random_poses(character: Character, n: int, seed: int = 0, perturb_deg: float
     check(0.0 <= base_clip_prob <= 1.0, f"random pose base_clip_prob must be in [0, 1], got {base_clip_prob}")
     check(0.0 <= near_base <= 1.0, f"random pose near_base must be in [0, 1], got {near_base}")
     check(np.isfinite(perturb_deg) and perturb_deg >= 0, f"perturb_deg must be finite and >= 0, got {perturb_deg}")
+    check(isinstance(base_clips, Sequence) and not isinstance(base_clips, str),
+          f"random pose base_clips must be a sequence of clip names or Clips, got {type(base_clips).__name__}")
+    clips = [character.clip(c) for c in base_clips]  # unknown names / wrong joint counts: PrtError
     rng = np.random.default_rng(seed)
     j = character.num_joints
     if mode == "sparse":
-        clips = [character.clip(c) for c in base_clips]  # unknown names / wrong joint counts: PrtError
         check(character.joint_limits is not None or len(clips) > 0 or perturb_deg > 0,
               "sparse random poses need joint limits, base clips or perturb_deg > 0")
         return Clip(name, fps, _sparse_poses(character, n, rng, perturb_deg, clips, base_clip_prob, max_chains,
@@ -215,9 +229,8 @@ def random_poses(character: Character, n: int, seed: int = 0, perturb_deg: float
         rot = _limit_rotations(character, rng, n)
         local[:, nonroot, :3, :3] = rot[:, nonroot]
         return Clip(name, fps, local)
-    check(len(character.clips) > 0,
-          f"character {character.name!r} has neither joint limits nor clips to sample random poses from")
-    clips = [character.clips[k] for k in sorted(character.clips)]
+    check(len(clips) > 0, f"character {character.name!r} has no joint limits and no training clip to sample "
+                          "random poses from (base_clips is empty)")
     ci = rng.integers(0, len(clips), size=n)
     src = np.stack([clips[c].local[rng.integers(0, clips[c].num_frames)] for c in ci])  # (n, J, 4, 4)
     pert = _random_rotations(rng, (n, j), perturb_deg)

@@ -13,6 +13,7 @@ from prt_torch.config import config_from_dict
 from prt_torch.errors import PrtError
 from prt_torch.rig import builtin
 from prt_torch.rig.character import Character
+from prt_torch.rig.clip import Clip
 from prt_torch.rig.random_pose import compose_limit_angles, joint_chains, limit_angles, random_poses
 
 N = 96
@@ -186,3 +187,104 @@ def test_plan_uses_the_sparse_sampler_with_training_bases_only() -> None:
         config_from_dict(_cfg(random_mode="grid"))
     with pytest.raises(PrtError, match="random_segment"):
         config_from_dict(_cfg(random_segment=0))
+
+
+# --- no held-out frame ever feeds a training pose (issue 8, item 0) -------------------------------------------------
+
+SIG_JOINT = 1  # a non-root joint whose local translation marks held-out frames (no clip or the bind pose moves it)
+SIG = np.array([0.0, 0.0, 3.0])
+
+
+def _signed_character(limits: bool, split: int | None = None) -> Character:
+    """The small built-in humanoid (5 fps) whose held-out frames carry a signature: ``wave`` and, with ``split``,
+    ``walk`` frames ``split:``. With ``limits=False`` it has no joint limits (the glTF/BVH path)."""
+    c = builtin.make_character(0.05, fps=5.0)
+    clips = dict(c.clips)
+    for name, start in [("wave", 0)] + ([("walk", split)] if split is not None else []):
+        local = clips[name].local.copy()
+        local[start:, SIG_JOINT, :3, 3] += SIG
+        clips[name] = Clip(name, clips[name].fps, local)
+    return replace(c, clips=clips, joint_limits=c.joint_limits if limits else None)
+
+
+def _signature_distance(character: Character, local: np.ndarray) -> np.ndarray:
+    """``(F,)`` distance of each frame's signature-joint translation from the nearest clean one (bind pose)."""
+    clean = character.bind_local[SIG_JOINT, :3, 3]
+    return np.linalg.norm(local[:, SIG_JOINT, :3, 3] - clean, axis=-1)
+
+
+LEAK_CASES = {
+    "uniform-limits": dict(random_mode="uniform"),
+    "uniform-no-limits": dict(random_mode="uniform", limits=False),
+    "sparse-limits-bases": dict(random_mode="sparse", random_base_prob=1.0),
+    "sparse-no-limits-bases": dict(random_mode="sparse", random_base_prob=1.0, limits=False),
+    "sparse-limits-no-bases": dict(random_mode="sparse", random_base_prob=1.0, train_clips=[]),
+    "sparse-no-limits-no-bases": dict(random_mode="sparse", random_base_prob=1.0, train_clips=[], limits=False),
+    "sparse-segment": dict(random_mode="sparse", random_base_prob=0.7, random_segment=3),
+    "sparse-segment-no-limits": dict(random_mode="sparse", random_base_prob=0.7, random_segment=3, limits=False),
+}
+
+
+@pytest.mark.parametrize("split", [False, True], ids=["clips", "within-clip"])
+@pytest.mark.parametrize("case", list(LEAK_CASES))
+def test_no_heldout_frame_feeds_a_random_pose(case: str, split: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every random pose of a plan derives from the bind pose or training frames only: held-out frames carry a
+    translation signature that survives every sampler (copied bases / sources, slerp segments lerp translations)."""
+    import prt_torch.rig.random_pose as rp
+
+    opts = dict(LEAK_CASES[case])
+    limits = bool(opts.pop("limits", True))
+    character = _signed_character(limits, split=6 if split else None)
+    train = opts.pop("train_clips", ["stretch", "squat"])
+    heldout = ["wave"]
+    if split:
+        train = train + [{"clip": "walk", "frames": ":6"}]
+        heldout = [{"clip": "walk", "frames": "6:"}] + heldout
+    made = []
+
+    def spy(*args: object, **kwargs: object) -> Clip:
+        made.append(rp_random_poses(*args, **kwargs))
+        return made[-1]
+
+    rp_random_poses = rp.random_poses
+    monkeypatch.setattr(rp, "random_poses", spy)
+    cfg = config_from_dict(_cfg(train_clips=train, heldout_clips=heldout, random_poses=90, **opts))
+    plan = make_plan(cfg, character=character)
+    assert len(made) == 1 and made[0].num_frames == 90
+    # the signature is there to find: every held-out frame carries it, no training frame does
+    assert np.all(_signature_distance(character, character.clips["wave"].local) > 2.9)
+    for name in plan.splits["train"]:
+        if name != RANDOM_CLIP:
+            src = name.split("[")[0]
+            idx = plan.frame_index[plan.clip_id == plan.clip_names.index(name)]
+            assert np.all(_signature_distance(character, character.clips[src].local[idx]) < 1e-12)
+    # no random pose derives from a held-out frame (interpolated frames towards one would be >= 1.0 off)
+    d = _signature_distance(character, made[0].local)
+    assert d.max() < 1e-9, f"{np.count_nonzero(d > 1e-9)} of 90 random poses derive from held-out frames"
+    if case in ("uniform-no-limits", "sparse-no-limits-bases") and split:  # sources used: the training range of walk
+        walk = character.clips["walk"].local[:6, 2:, :3, 3]
+        assert np.any(np.all(np.isclose(made[0].local[:, None, 2:, :3, 3], walk[None]), axis=(-1, -2)))
+
+
+def test_uniform_without_limits_needs_training_clips(humanoid: Character) -> None:
+    c = replace(humanoid, joint_limits=None)
+    with pytest.raises(PrtError, match="no joint limits and no training clip"):
+        random_poses(c, 4)  # never falls back to the character's (possibly held-out) clips
+    with pytest.raises(PrtError, match="no joint limits and no training clip"):
+        make_plan(config_from_dict(_cfg(train_clips=[], random_poses=4)), character=c)
+    # with training clips: only their frames are sources
+    clip = random_poses(c, 40, seed=0, perturb_deg=0.0, base_clips=["squat"])
+    squat = c.clips["squat"].local[:, 1:]
+    assert all(np.any(np.all(np.isclose(squat, f[None, 1:], atol=1e-12), axis=(1, 2, 3))) for f in clip.local)
+
+
+def test_random_perturb_deg_is_passed_through() -> None:
+    c = replace(builtin.make_character(0.05, fps=5.0), joint_limits=None)
+    for deg in (0.0, 7.0):
+        plan = make_plan(config_from_dict(_cfg(random_perturb_deg=deg)), character=c)
+        expected = random_poses(c, 24, seed=1, perturb_deg=deg, fps=5.0, base_clips=["stretch"])
+        rid = plan.clip_names.index(RANDOM_CLIP)
+        np.testing.assert_allclose(plan.pose[plan.clip_id == rid], c.pose(expected).features, atol=1e-6)
+    for bad in (-1.0, 181.0):
+        with pytest.raises(PrtError, match="random_perturb_deg"):
+            config_from_dict(_cfg(random_perturb_deg=bad))
