@@ -20,7 +20,7 @@ Layout (written by):
 ``fused.onnx``, ``rpo/<name>.npz``,        metadata)
 ``frames.npz``, ``export.json``
 ``compare/``                               ``prt compare`` (``table.md``, ``index.html``, ``compare.json``,
-                                           ``strip.png``, ``psnr_vs_ms.png``)
+                                           ``strip.png``, ``psnr_vs_ms.png``, ``<kind>.visibility.onnx``)
 ``heldout.mp4``, ``comparison.png``,       ``prt demo`` / ``prt play``
 ``demo_metrics.json``, ``*.timings.json``,
 ``play_timings.json``
@@ -64,6 +64,13 @@ _EXPORT_JSON = "export.json"
 _FRAMES = "frames.npz"
 _RPO = "rpo"
 _COMPARE = "compare"
+_COMPARE_JSON = "compare.json"
+_COMPARE_TABLE = "table.md"
+_INDEX_HTML = "index.html"
+_INDEX_MD = "index.md"
+_COMPARE_STRIP = "strip.png"
+_COMPARE_SCATTER = "psnr_vs_ms.png"
+_COMPARE_GRAPH_SUFFIX = ".visibility.onnx"
 _STAGES = "stages.json"
 _DEMO_VIDEO = "heldout.mp4"
 _DEMO_IMAGE = "comparison.png"
@@ -188,11 +195,52 @@ class RunDir:
 
     @property
     def report_json(self) -> Path:
+        """``report/results.json``: the ``prt eval`` results."""
         return self.report_dir / _RESULTS_JSON
+
+    @property
+    def report_index_md(self) -> Path:
+        """``report/index.md``: the ``prt eval`` report (its figures beside it are named by ``eval.report``)."""
+        return self.report_dir / _INDEX_MD
+
+    @property
+    def report_index_html(self) -> Path:
+        """``report/index.html``: the same report as HTML."""
+        return self.report_dir / _INDEX_HTML
 
     @property
     def compare_dir(self) -> Path:
         return self.path / _COMPARE
+
+    @property
+    def compare_json(self) -> Path:
+        """``compare/compare.json``: every method's figures (schema in :mod:`prt_torch.compare`)."""
+        return self.compare_dir / _COMPARE_JSON
+
+    @property
+    def compare_table(self) -> Path:
+        """``compare/table.md``: the same as a Markdown table."""
+        return self.compare_dir / _COMPARE_TABLE
+
+    @property
+    def compare_html(self) -> Path:
+        """``compare/index.html``: table and figures."""
+        return self.compare_dir / _INDEX_HTML
+
+    @property
+    def compare_strip(self) -> Path:
+        """``compare/strip.png``: truth | each method | 4x difference, at the frame with the most shadowing."""
+        return self.compare_dir / _COMPARE_STRIP
+
+    @property
+    def compare_scatter(self) -> Path:
+        """``compare/psnr_vs_ms.png``: image PSNR vs milliseconds per frame."""
+        return self.compare_dir / _COMPARE_SCATTER
+
+    def compare_graph_path(self, kind: str) -> Path:
+        """``compare/<kind>.visibility.onnx``: a kind's visibility graph exported by ``prt compare``."""
+        check(bool(kind) and "/" not in kind and kind[0] != ".", f"bad model kind {kind!r}")
+        return self.compare_dir / f"{kind}{_COMPARE_GRAPH_SUFFIX}"
 
     # -- export ----------------------------------------------------------------------------------
     @property

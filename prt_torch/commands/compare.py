@@ -1,15 +1,57 @@
-"""``prt compare``: placeholder while it is being written (replaced in this change)."""
+"""``prt compare RUN``: every visibility method side by side on the shipping path (schema: :mod:`prt_torch.compare`)."""
 
 from __future__ import annotations
 
 import argparse
+import json
 
-HELP = "(being written)"
+HELP = "Compare visibility methods (truth, unshadowed, learned models) on held-out frames or a clip."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    pass
+    parser.add_argument("run", help="trained run directory (runs/NAME)")
+    parser.add_argument("--methods", default=None, help="comma-separated methods (default: every available one; "
+                                                        "sh_truth is always included)")
+    parser.add_argument("--clip", default=None, help="a clip of the character to pose and trace (default: the "
+                                                     "dataset's held-out frames)")
+    parser.add_argument("--frames", type=int, default=None, help="at most this many frames (evenly spaced)")
+    parser.add_argument("--env", default=None, help="HDR environment map (default: the player's procedural sky)")
+    parser.add_argument("--image-frames", type=int, default=8, help="frames rendered for image PSNR (default 8)")
+    parser.add_argument("--reference-frames", type=int, default=4,
+                        help="frames of the Monte-Carlo reference (default 4; 0 disables)")
+    parser.add_argument("--reference-rays", type=int, default=512,
+                        help="rays per vertex of each of the two reference estimates (default 512)")
+    parser.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+    parser.add_argument("--json", action="store_true", help="print the JSON (schema: prt_torch.compare)")
 
 
 def run(args: argparse.Namespace) -> int:
-    raise NotImplementedError
+    from rich.console import Console
+
+    from prt_torch.compare.methods import METHODS
+    from prt_torch.compare.run import run_compare, table_markdown
+    from prt_torch.errors import PrtError
+    from prt_torch.rundir import RunDir
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    for m in methods or ():
+        if m not in METHODS:
+            raise PrtError(f"unknown method {m!r}: expected one of {', '.join(METHODS)}")
+    if args.frames is not None and args.frames < 1:
+        raise PrtError(f"--frames must be >= 1, got {args.frames}")
+    for name in ("image_frames", "reference_frames", "threads"):
+        if getattr(args, name) < (1 if name == "threads" else 0):
+            raise PrtError(f"--{name.replace('_', '-')} must be >= {1 if name == 'threads' else 0}")
+    if args.reference_rays < 1:
+        raise PrtError(f"--reference-rays must be >= 1, got {args.reference_rays}")
+    console = Console(stderr=True)
+    result = run_compare(args.run, methods=methods, clip=args.clip, max_frames=args.frames, env=args.env,
+                         image_frames=args.image_frames, reference_frames=args.reference_frames,
+                         reference_rays=args.reference_rays, threads=args.threads, log=console.log,
+                         progress=not args.json)
+    if args.json:
+        print(json.dumps(json.loads(json.dumps(result, default=float)), indent=2))
+        return 0
+    console.print(table_markdown(result))
+    console.print(f"wrote {RunDir(args.run).compare_dir}")
+    return 0

@@ -1,4 +1,5 @@
-"""``prt eval RUN``: errors of every trained model against the baked ground truth, with a report."""
+"""``prt eval RUN``: errors of every trained model against the baked ground truth on the shipping path, with a
+report (JSON schema: :mod:`prt_torch.eval.evaluate`)."""
 
 from __future__ import annotations
 
@@ -6,15 +7,23 @@ import argparse
 import json
 from pathlib import Path
 
-HELP = "Evaluate a trained run on held-out clips: errors, PSNR, jitter, storage; writes RUN/report/."
+HELP = "Evaluate a trained run on held-out clips (shipping-path shading, image PSNR, jitter, storage); writes a report."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", help="run directory (runs/NAME) with model.json, or a run config YAML")
-    parser.add_argument("--dataset", default=None, help="dataset.zarr (default: the one recorded in model.json)")
-    parser.add_argument("--frames", type=int, default=32, help="max frames per split (contiguous per clip)")
+    parser.add_argument("run", help="trained run directory (runs/NAME), or a run config YAML")
+    parser.add_argument("--dataset", default=None, help="baked dataset (default: the run's, else the one recorded at "
+                                                        "training time)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="cap the frames per split (first frames of each clip; default: every held-out frame)")
+    parser.add_argument("--train-frames", type=int, default=48,
+                        help="cap the training split (subsampled, contiguous per clip; default 48; 0 = all)")
+    parser.add_argument("--image-frames", type=int, default=None,
+                        help="frames rendered per split for image PSNR (default: 6 held-out, 3 train; 0 disables)")
+    parser.add_argument("--lights", default=None, help="comma-separated lights (sky, uffizi, mondello; default: all "
+                                                       "available)")
     parser.add_argument("--no-report", action="store_true", help="skip figures and the shaded image")
-    parser.add_argument("--json", action="store_true", help="print models.<kind>.<split>.<metric> and storage")
+    parser.add_argument("--json", action="store_true", help="print the results JSON (models.<kind>.<split>...)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -23,8 +32,8 @@ def run(args: argparse.Namespace) -> int:
 
     from prt_torch.errors import PrtError
     from prt_torch.eval.evaluate import evaluate_run
-    from prt_torch.eval.report import json_summary, write_report
-    from prt_torch.io import atomic_write_json
+    from prt_torch.eval.report import json_summary, write_report, write_results
+    from prt_torch.rundir import RunDir
 
     run_dir = Path(args.run)
     if run_dir.suffix in (".yaml", ".yml"):
@@ -33,27 +42,51 @@ def run(args: argparse.Namespace) -> int:
         run_dir = Path(load_config(run_dir).out_dir)
     if not run_dir.is_dir():
         raise PrtError(f"run directory not found: {run_dir}")
-    if args.frames < 2:
+    if args.frames is not None and args.frames < 2:
         raise PrtError(f"--frames must be >= 2, got {args.frames}")
+    if args.train_frames < 0 or args.train_frames == 1:
+        raise PrtError(f"--train-frames must be 0 (all) or >= 2, got {args.train_frames}")
+    if args.image_frames is not None and args.image_frames < 0:
+        raise PrtError(f"--image-frames must be >= 0, got {args.image_frames}")
+    image_frames = None if args.image_frames is None else {"heldout": args.image_frames, "train": args.image_frames}
+    lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
+    run_d = RunDir(run_dir)
     console = Console(stderr=True)
-    with console.status("evaluating"):
-        ev = evaluate_run(run_dir, dataset=args.dataset, max_frames=args.frames)
-        if args.no_report:
-            atomic_write_json(run_dir / "report" / "results.json", ev.results)
-            index = None
-        else:
-            index = write_report(ev, run_dir)
+    ev = evaluate_run(run_d, dataset=args.dataset, max_frames=args.frames, train_frames=args.train_frames or None,
+                      lights=lights, image_frames=image_frames, log=console.log, progress=not args.json)
+    if args.no_report:
+        write_results(ev, run_d)
+        index = None
+    else:
+        with console.status("writing the report"):
+            index = write_report(ev, run_d)
+    r = ev.results
     if args.json:
-        print(json.dumps(json_summary(ev.results), indent=2, sort_keys=True))
+        print(json.dumps(json_summary(r), indent=2, sort_keys=True))
         return 0
-    t = Table(title=f"prt eval {run_dir}")
-    for col in ("model", "split", "vis_rel_err", "psnr_diffuse", "psnr_glossy", "jitter"):
-        t.add_column(col)
-    for kind, splits in ev.results["models"].items():
+    frames = ", ".join(f"{s}: {n} frames{' (subsampled)' if s == 'train' and r['train_subsampled'] else ''}, "
+                       f"{r['image_frames'].get(s, 0)} rendered" for s, n in r["frames"].items())
+    t = Table(title=f"prt eval {run_dir} ({frames}); image PSNR dB (character pixels), player's sky, "
+                    "exact / lobes lighting")
+    for col in ("model", "split", "frames", "vis_rel_err", "jitter", "diffuse exact", "diffuse lobes",
+                "glossy exact", "glossy lobes", "rel RMSE glossy lobes"):
+        t.add_column(col, justify="right" if col not in ("model", "split") else "left")
+
+    def f(x: float | None, spec: str = ".2f") -> str:
+        return "-" if x is None else ("inf" if x == float("inf") else format(x, spec))
+
+    for kind, splits in r["models"].items():
         for split, m in splits.items():
-            t.add_row(kind, split, f"{m['vis_rel_err']:.4f}", f"{m['psnr_diffuse']:.2f}", f"{m['psnr_glossy']:.2f}",
-                      f"{m['jitter']:.4f}")
+            sky = m["shading"].get(r["player_light"]) or next(iter(m["shading"].values()))
+            cells = [f(sky.get(b, {}).get(p, {}).get("psnr_image")) for b in ("lambert", "phong")
+                     for p in ("exact", "lobes")]
+            t.add_row(kind, split, str(m["frames"]), f(m["vis_rel_err"], ".4f"), f(m["jitter"], ".4f"), *cells,
+                      f(sky.get("phong", {}).get("lobes", {}).get("radiance_rel_rmse"), ".4f"))
     console.print(t)
+    lf = r.get("lobe_fit", {}).get("heldout", {})
+    if lf:
+        console.print("lobe fit alone (held-out truth, lobes vs exact, image PSNR dB): " + ", ".join(
+            f"{ln}/{bn} {f(m['psnr_image'])}" for ln, b in lf.items() for bn, m in b.items()))
     if index is not None:
         console.print(f"report: {index}")
     return 0

@@ -1,0 +1,185 @@
+"""The ``reference``: the rendering integral per vertex by Monte-Carlo with Embree rays, no SH anywhere.
+
+``L(wo) = int_{H(n)} L_env(wi) V(wi) f(wi, wo) cos(theta_i) dwi + sum_sun E_sun V(s) f(s, wo) max(cos, 0)``
+
+* ``L_env``: the full-resolution radiance function of the lighting: for the player's procedural sky, the CIE
+  clear sky + ground of :func:`prt_torch.light.sources.sky_envmap` evaluated directly at each ray direction
+  (:func:`prt_torch.light.sources.cie_clear_sky`, with the colours the player's :func:`~prt_torch.light.sources.
+  sky_sh` call uses) and its sun as a delta light of power ``E_sun`` (the player's sun, half-angle 0.27 deg
+  treated as a point); for an HDR file, the nearest pixel of the map (no SH projection, no window).
+* ``f``: the analytic BRDF (:func:`prt_torch.brdf.rpo.builtin_brdf`, tint included), no factorisation.
+* ``V``: Embree occlusion from ``p + offset n`` (the bake's ray offset) against the posed mesh.
+* Sampling: a randomised spherical-Fibonacci hemisphere set of ``R`` directions about each vertex normal
+  (:func:`prt_torch.sh.quadrature.hemisphere_directions` with a seed, each turned about the normal by a
+  per-vertex angle: the bake's :class:`~prt_torch.bake.trace.RaySet` machinery), weight ``2 pi / R``.
+  Vectorised over blocks of vertices (no loop over vertices or rays).
+
+Two independent estimates (different seeds) are averaged; their disagreement measures the Monte-Carlo
+noise (:func:`reference_pair`).
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prt_torch.errors import PrtError, check
+
+
+@dataclass
+class ReferenceLight:
+    """A radiance function ``radiance(dirs (N, 3) world) -> (N, 3)`` plus delta lights ``[(direction (3,),
+    power (3,))]`` (irradiance on a surface facing the light), and a description."""
+
+    radiance: Callable[[np.ndarray], np.ndarray]
+    deltas: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    source: str = ""
+
+
+def sky_reference() -> ReferenceLight:
+    """The player's default lighting (``load_lighting(None, order)``) as a radiance function + the sun."""
+    from prt_torch.light.sources import cie_clear_sky, sky_sh
+    from prt_torch.player.lighting import DEFAULT_SUN_COLOR, DEFAULT_SUN_DIRECTION
+
+    defaults = {k: p.default for k, p in inspect.signature(sky_sh).parameters.items()}
+    sky = np.asarray(defaults["sky_color"], dtype=np.float64)
+    ground = np.asarray(defaults["ground_color"], dtype=np.float64)
+    sun = np.asarray(DEFAULT_SUN_DIRECTION, dtype=np.float64)
+    sun = sun / np.linalg.norm(sun)
+
+    def radiance(dirs: np.ndarray) -> np.ndarray:  # the image of sky_envmap, evaluated at any direction
+        d = np.asarray(dirs, dtype=np.float64)
+        return cie_clear_sky(d, sun)[..., None] * sky + (d[..., 2] <= 0)[..., None] * ground
+
+    deltas = [(sun, np.asarray(DEFAULT_SUN_COLOR, dtype=np.float64))] if sun[2] > 0 else []
+    return ReferenceLight(radiance, deltas, "procedural sky (CIE clear sky + ground, sun as a delta light)")
+
+
+def envmap_reference(path: str | Path) -> ReferenceLight:
+    """An HDR environment map as a nearest-pixel radiance function (full resolution)."""
+    from prt_torch.light.envmap import latlong_pixel_coords, load_envmap, probe_pixel_coords
+
+    env = load_envmap(path)
+    img = env.image.astype(np.float64)
+    h, w = env.shape
+    coords = latlong_pixel_coords if env.layout == "latlong" else probe_pixel_coords
+
+    def radiance(dirs: np.ndarray) -> np.ndarray:
+        uv = coords(np.asarray(dirs, dtype=np.float64))
+        col = np.clip((uv[..., 0] * w).astype(np.int64), 0, w - 1)
+        row = np.clip((uv[..., 1] * h).astype(np.int64), 0, h - 1)
+        return img[row, col]
+
+    return ReferenceLight(radiance, [], f"{path} (nearest pixel, {w}x{h})")
+
+
+def reference_light(env: str | Path | None) -> ReferenceLight:
+    """:func:`sky_reference` for ``None`` (the player's default), else :func:`envmap_reference`."""
+    if env is None or str(env) in ("", "sky"):
+        return sky_reference()
+    check(Path(env).is_file(), f"environment map not found: {env}")
+    return envmap_reference(env)
+
+
+def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndarray, eye: np.ndarray,
+                       light: ReferenceLight, brdfs: Mapping[str, Any], n_rays: int, seed: int, offset: float,
+                       max_rays: int = 1 << 19) -> dict[str, np.ndarray]:
+    """One Monte-Carlo estimate of the outgoing radiance toward ``eye`` of every vertex of one posed frame.
+
+    Args:
+        positions: ``(V, 3)`` world; frames: ``(V, 3, 3)`` rows ``(t, b, n)``; faces: ``(T, 3)``.
+        eye: ``(3,)`` camera position.
+        light: :class:`ReferenceLight`.
+        brdfs: ``{name: BRDF}`` analytic BRDFs (:mod:`prt_torch.brdf.analytic`; ``brdf(wi, wo) -> (N, 3)``).
+        n_rays: hemisphere directions per vertex ``R``; seed: the estimate's seed.
+        offset: ray origin offset along the normal (world units).
+        max_rays: rays per block (memory bound).
+
+    Returns:
+        ``{name: (V, 3) float64}``; the radiance of a vertex seen from below its horizon (``wo.z <= 0``) is 0
+        (the analytic BRDFs vanish there), see :func:`front_facing`.
+    """
+    from prt_torch.bake.directions import rotated_frames, vertex_angles, world_directions
+    from prt_torch.bake.embree import RayScene
+    from prt_torch.sh.quadrature import hemisphere_directions
+
+    positions = np.asarray(positions, dtype=np.float64)
+    frames = np.asarray(frames, dtype=np.float64)
+    v = positions.shape[0]
+    check(frames.shape == (v, 3, 3), f"reference: frames must be ({v}, 3, 3), got {frames.shape}")
+    check(n_rays >= 1, f"reference: need >= 1 ray per vertex, got {n_rays}")
+    if not (np.isfinite(positions).all() and np.isfinite(frames).all()):
+        raise PrtError("reference: positions or frames contain NaN or Inf")
+    scene = RayScene(positions.astype(np.float32), np.asarray(faces))
+    local = hemisphere_directions(int(n_rays), seed=int(seed))  # (R, 3)
+    phi = vertex_angles(v, int(seed) + 7919)
+    view = np.asarray(eye, dtype=np.float64) - positions
+    view /= np.maximum(np.linalg.norm(view, axis=-1, keepdims=True), 1e-12)
+    wo_all = np.einsum("vij,vj->vi", frames, view)
+    wo_all /= np.linalg.norm(wo_all, axis=-1, keepdims=True)
+    origins_all = positions + offset * frames[:, 2]
+    out = {name: np.zeros((v, 3)) for name in brdfs}
+    weight = 2 * math.pi / n_rays
+    vb = max(1, max_rays // n_rays)
+    for v0 in range(0, v, vb):
+        v1 = min(v, v0 + vb)
+        n = v1 - v0
+        f = frames[v0:v1]
+        world = world_directions(local, rotated_frames(f, phi[v0:v1]))  # (R, n, 3)
+        world /= np.linalg.norm(world, axis=-1, keepdims=True)
+        wi = np.einsum("vij,rvj->rvi", f, world)  # local directions (R, n, 3)
+        wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+        origins = np.broadcast_to(origins_all[v0:v1], (n_rays, n, 3))
+        occ = scene.occluded(np.ascontiguousarray(origins, dtype=np.float32).reshape(-1, 3),
+                             np.ascontiguousarray(world, dtype=np.float32).reshape(-1, 3))
+        vis = np.logical_not(occ).reshape(n_rays, n)
+        le = light.radiance(world.reshape(-1, 3)).reshape(n_rays, n, 3)
+        cos = np.maximum(wi[..., 2], 0.0)
+        wo = np.broadcast_to(wo_all[v0:v1], (n_rays, n, 3)).reshape(-1, 3)
+        for name, brdf in brdfs.items():
+            fr = brdf(wi.reshape(-1, 3), np.ascontiguousarray(wo)).reshape(n_rays, n, 3)
+            out[name][v0:v1] += weight * np.einsum("rvc,rv->vc", le * fr, vis * cos)
+        for d, power in light.deltas:
+            s_world = np.broadcast_to(d, (n, 3))
+            s_local = np.einsum("vij,j->vi", f, d)
+            s_local /= np.linalg.norm(s_local, axis=-1, keepdims=True)
+            lit = np.logical_not(scene.occluded(origins_all[v0:v1].astype(np.float32),
+                                                np.ascontiguousarray(s_world, dtype=np.float32)))
+            cs = np.maximum(s_local[:, 2], 0.0) * lit
+            for name, brdf in brdfs.items():
+                out[name][v0:v1] += power * brdf(s_local, wo_all[v0:v1]) * cs[:, None]
+    return out
+
+
+def front_facing(positions: np.ndarray, frames: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """``(V,)`` bool: vertices whose normal faces the camera (``n . (eye - p) > 0``). Only these are compared
+    with the reference per vertex: behind the horizon the analytic BRDF is 0 while an RPO's view factor (a
+    least-squares SH fit over the upper hemisphere) extrapolates; such vertices are hidden in the images."""
+    view = np.asarray(eye, dtype=np.float64) - np.asarray(positions, dtype=np.float64)
+    return np.einsum("vi,vi->v", np.asarray(frames, dtype=np.float64)[:, 2], view) > 0
+
+
+@dataclass
+class ReferencePair:
+    """Two independent estimates ``a``, ``b`` ``{brdf: (V, 3)}`` and their mean ``mean``."""
+
+    a: dict[str, np.ndarray]
+    b: dict[str, np.ndarray]
+
+    @property
+    def mean(self) -> dict[str, np.ndarray]:
+        return {k: 0.5 * (self.a[k] + self.b[k]) for k in self.a}
+
+
+def reference_pair(positions: np.ndarray, frames: np.ndarray, faces: np.ndarray, eye: np.ndarray,
+                   light: ReferenceLight, brdfs: Mapping[str, Any], n_rays: int, offset: float,
+                   seeds: tuple[int, int] = (101, 202)) -> ReferencePair:
+    """Two independent :func:`reference_radiance` estimates (seeds ``seeds``)."""
+    return ReferencePair(*(reference_radiance(positions, frames, faces, eye, light, brdfs, n_rays, s, offset)
+                           for s in seeds))
