@@ -18,7 +18,8 @@ HELP = "Fit times of linear, quadratic and MLP models on the built-in training s
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--dataset", default=None, help="baked dataset or run directory (default: bake the built-in character small)")
+    parser.add_argument("--dataset", default=None,
+                        help="baked dataset or run directory (default: bake the built-in character small)")
     parser.add_argument("--config", default=None, help="run config whose train section to use (default: defaults)")
     parser.add_argument("--max-iter", type=int, default=None, help="override train.max_iter")
     parser.add_argument("--json", action="store_true", help="print a JSON object")
@@ -42,9 +43,9 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from threadpoolctl import threadpool_limits
 
+    from prt_torch.bake.store import open_dataset
     from prt_torch.config import load_config
     from prt_torch.fit.config import TrainConfig
-    from prt_torch.bake.store import open_dataset
     from prt_torch.fit.train import fit_mlp_kind, fit_ridge_kind, reduce_training
 
     console = Console(stderr=True)

@@ -83,9 +83,12 @@ def run(args: argparse.Namespace) -> int:
     heldout = list(cfg.character.heldout_clips)
     if not heldout:
         raise PrtError(f"{cfg_path}: the demo needs a held-out clip (character.heldout_clips)")
-    clip = heldout[0]
-
     from prt_torch.player import Player
+    from prt_torch.rig.clip import Clip
+    from prt_torch.rig.config import as_clip_range
+
+    entry = as_clip_range(heldout[0])  # a whole clip or a frame range of one (a within-clip split)
+    clip = entry.dataset_name
 
     t0 = time.perf_counter()
     player = Player(run, env=args.env, brdf=args.brdf, window_size=(h, w))
@@ -95,7 +98,9 @@ def run(args: argparse.Namespace) -> int:
         seconds["compare"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         console.print(f"[bold]5/5 play[/] held-out clip '{clip}' with onnxruntime -> {run.demo_video}")
-        res = player.play(clip, out=run.demo_video, max_frames=args.max_frames,
+        fps = cfg.character.fps
+        frames = player.clip_locals(entry.clip, fps)[entry.frame_slice(fps)]
+        res = player.play(Clip(clip, fps, frames), out=run.demo_video, max_frames=args.max_frames,
                           timings=run.timings_path(run.demo_video))
         seconds["play"] = time.perf_counter() - t0
     finally:

@@ -35,6 +35,7 @@ from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_ligh
 from prt_torch.player.posing import PoseBatch, Poser
 from prt_torch.player.timing import FrameTimer
 from prt_torch.player.tonemap import ToneMap, auto_tonemap
+from prt_torch.rig.clip import Clip
 from prt_torch.rundir import RunDir
 from prt_torch.runtime.session import OrtGraph
 
@@ -48,6 +49,28 @@ class PlayResult:
     frames: int
     summary: dict[str, Any]
     outputs: list[Path]
+
+
+#: the default camera: azimuth (radians, 0 = in front, along -y) and elevation above the horizon
+CAMERA_AZIMUTH, CAMERA_ELEVATION = 0.0, 0.2
+#: camera distance from the centre, in rest-pose bounding-box diagonals
+CAMERA_DISTANCE = 1.9
+
+
+def camera_target(rest_vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(center (3,) float32, radius)``: the rest-pose bounding-box centre and diagonal the camera orbits."""
+    rest = np.asarray(rest_vertices)
+    lo, hi = rest.min(0), rest.max(0)
+    return (0.5 * (lo + hi)).astype(np.float32), float(np.linalg.norm(hi - lo))
+
+
+def camera_eye(center: np.ndarray, radius: float, azimuth: float = CAMERA_AZIMUTH,
+               elevation: float = CAMERA_ELEVATION) -> np.ndarray:
+    """The player's camera position (world, float32): orbiting ``center`` at ``CAMERA_DISTANCE * radius``,
+    in front (-y) at azimuth 0, ``elevation`` radians up."""
+    a, e = azimuth, elevation
+    d = np.array([np.sin(a) * np.cos(e), -np.cos(a) * np.cos(e), np.sin(e)])
+    return (np.asarray(center) + CAMERA_DISTANCE * radius * d).astype(np.float32)
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
@@ -98,12 +121,9 @@ class Player:
         self.unshadowed = hemisphere_visibility(self.order)
         ch = self.character
         self.poser = Poser(ch, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone)
-        rest = ch.rest_vertices
-        lo, hi = rest.min(0), rest.max(0)
-        self.center = (0.5 * (lo + hi)).astype(np.float32)
-        self.radius = float(np.linalg.norm(hi - lo))
-        self.camera_azimuth = 0.0
-        self.camera_elevation = 0.2
+        self.center, self.radius = camera_target(ch.rest_vertices)
+        self.camera_azimuth = CAMERA_AZIMUTH
+        self.camera_elevation = CAMERA_ELEVATION
         self._renderer: Any = None
         self._pool: Any = None  # worker thread of the "overlap" mode (created on first use)
         self._vis_overlap: OrtGraph | None = None
@@ -111,10 +131,8 @@ class Player:
     # -- settings ------------------------------------------------------------------------------
     @property
     def eye(self) -> np.ndarray:
-        """Camera position (world): orbiting the rest-pose centre, in front (-y) at azimuth 0."""
-        a, e = self.camera_azimuth, self.camera_elevation
-        d = np.array([np.sin(a) * np.cos(e), -np.cos(a) * np.cos(e), np.sin(e)])
-        return (self.center + 1.9 * self.radius * d).astype(np.float32)
+        """Camera position (world): :func:`camera_eye` at the current azimuth and elevation."""
+        return camera_eye(self.center, self.radius, self.camera_azimuth, self.camera_elevation)
 
     def set_brdf(self, name: str) -> None:
         """Swap the material (an RPO of the run's catalogue, or an RPO file)."""
@@ -138,7 +156,7 @@ class Player:
         self.camera_elevation = float(np.clip(self.camera_elevation + d_elevation, -1.2, 1.2))
 
     # -- per-frame path ------------------------------------------------------------------------
-    def clip_locals(self, clip: str, fps: float | None = None) -> np.ndarray:
+    def clip_locals(self, clip: str | Clip, fps: float | None = None) -> np.ndarray:
         """``(F, J, 4, 4)`` local joint transforms of a clip of the character."""
         c = self.character.clip(clip)
         if fps is not None and fps != c.fps:
@@ -278,13 +296,13 @@ class Player:
         r.update(state.positions_vx3(index), self.colors(radiance[index]))
         return r.render()
 
-    def play(self, clip: str, out: str | os.PathLike[str] | None = None, png_dir: str | os.PathLike[str] | None = None,
+    def play(self, clip: str | Clip, out: str | os.PathLike[str] | None = None, png_dir: str | os.PathLike[str] | None = None,
              max_frames: int | None = None, fps: float | None = None, timings: str | os.PathLike[str] | None = None,
              show: bool = False, progress: bool = True) -> PlayResult:
         """Play ``clip``: offscreen into an MP4 (``out``) and/or PNG frames (``png_dir``), or in a window.
 
         Args:
-            clip: clip name of the character.
+            clip: clip name of the character, or a :class:`~prt_torch.rig.clip.Clip` of its joints.
             out: MP4 path (written atomically), or ``None``.
             png_dir: directory for ``frame_00000.png`` ..., or ``None``.
             max_frames: play at most this many frames.
@@ -297,6 +315,7 @@ class Player:
         from prt_torch.player.video import VideoWriter, write_png
 
         locals_ = self.clip_locals(clip, fps)
+        clip = clip if isinstance(clip, str) else clip.name
         n = len(locals_) if max_frames is None else max(0, min(int(max_frames), len(locals_)))
         check(n > 0, f"clip {clip!r}: nothing to play (max_frames={max_frames})")
         if show and not has_display():
