@@ -296,8 +296,9 @@ class Player:
         r.update(state.positions_vx3(index), self.colors(radiance[index]))
         return r.render()
 
-    def play(self, clip: str | Clip, out: str | os.PathLike[str] | None = None, png_dir: str | os.PathLike[str] | None = None,
-             max_frames: int | None = None, fps: float | None = None, timings: str | os.PathLike[str] | None = None,
+    def play(self, clip: str | Clip, out: str | os.PathLike[str] | None = None,
+             png_dir: str | os.PathLike[str] | None = None, max_frames: int | None = None,
+             fps: float | None = None, timings: str | os.PathLike[str] | None = None,
              show: bool = False, progress: bool = True) -> PlayResult:
         """Play ``clip``: offscreen into an MP4 (``out``) and/or PNG frames (``png_dir``), or in a window.
 
