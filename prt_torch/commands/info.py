@@ -63,12 +63,10 @@ def describe(file: str, fps: float = 30.0) -> dict[str, Any]:
 
     Raises :class:`~prt_torch.errors.PrtError` (one line) for a missing, unknown or malformed file.
     """
-    import math
-
+    from prt_torch import limits
     from prt_torch.errors import PrtError
 
-    if not (math.isfinite(fps) and fps > 0):
-        raise PrtError(f"--fps must be > 0, got {fps}")
+    limits.check_float(fps, "--fps", 0.0, limits.MAX_FPS, lo_open=True)
     if file == "builtin":
         return _describe_builtin()
     path = Path(file)
@@ -153,34 +151,11 @@ def _describe_bvh(path: Path) -> dict[str, Any]:
 
     skel, clip = load_bvh(path)
     joints = _joints(skel.joint_names, skel.parents)
-    channels = _bvh_channels(path)
-    if len(channels) != len(joints):  # cannot happen for a file load_bvh accepted; keep the message one line
-        from prt_torch.errors import PrtError
-
-        raise PrtError(f"{path.name}: {len(channels)} channel lists for {len(joints)} joints")
+    channels = [list(c) for c in skel.channels]  # the loader's own parse, in its joint order
     for j, ch in zip(joints, channels, strict=True):
         j["channels"] = ch
     return {"file": str(path), "kind": "bvh", "character": clip.name, "vertices": 0, "faces": 0, "height": None,
             "joints": joints, "clips": _clips([clip]), "materials": []}
-
-
-def _bvh_channels(path: Path) -> list[list[str]]:
-    """Channel names of each ``ROOT``/``JOINT`` of a BVH hierarchy, in file order (the loader's joint order)."""
-    head = path.read_text(errors="replace").partition("MOTION")[0].split()
-    out: list[list[str]] = []
-    i = 0
-    while i < len(head):
-        t = head[i]
-        if t in ("ROOT", "JOINT"):
-            out.append([])
-            i += 2
-        elif t == "CHANNELS" and out:
-            n = int(head[i + 1])
-            out[-1] = head[i + 2:i + 2 + n]
-            i += 2 + n
-        else:
-            i += 1
-    return out
 
 
 def _short_channels(channels: list[str]) -> str:

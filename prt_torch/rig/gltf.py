@@ -31,13 +31,28 @@ the file's (Fox.glb is ~80 units tall). Vertices are welded on equal position an
 (non-indexed files such as Fox.glb); missing normals are computed (area weighted), existing ones
 are averaged over welded duplicates. Weights within ``WEIGHT_TOLERANCE`` of summing to one are
 renormalised; others raise :class:`~prt_torch.errors.PrtError`.
+
+Malformed files: :func:`read_document` checks the GLB container (magic, version, header and chunk
+lengths against the file) and decodes every buffer (strict base64; truncated buffers rejected), then
+:func:`validate_document` checks, in one pass before the loader touches anything, the node graph
+(acyclic, at most one parent per node), every index, every accessor's byte span against its
+bufferView and buffer (``count >= 1``, ``stride >= element size``), accessor types per use, node
+transforms (16 / 3 / 4 / 3 finite numbers) and animation channel shapes. Data read later (positions,
+times, matrices) is checked for NaN/inf, and a clip is refused beyond ``MAX_CLIP_BYTES``. Every
+problem is one :class:`~prt_torch.errors.PrtError` line.
 """
 
 from __future__ import annotations
 
 import base64
+import binascii
 import os
+import struct
+import urllib.parse
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -49,45 +64,390 @@ from prt_torch.rig.rotations import Y_UP_TO_Z_UP, matrix_to_quat, quat_to_matrix
 
 WEIGHT_TOLERANCE = 0.02
 
+#: the most bytes one decoded accessor (float64/int64) may take: a bound against absurd ``count`` values.
+MAX_ACCESSOR_BYTES = 1 << 30
+#: the most bytes of sampled joint transforms (``frames x joints x 4 x 4`` float64) one animation may take.
+MAX_CLIP_BYTES = 1 << 30
+
 _COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 _C4 = np.eye(4)
 _C4[:3, :3] = Y_UP_TO_Z_UP
+_GLB_MAGIC, _GLB_JSON, _GLB_BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
+_INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
+_TRS_PATHS = {"translation": "VEC3", "rotation": "VEC4", "scale": "VEC3"}
+_UNSIGNED = (5121, 5123, 5125)
+#: attribute semantic -> (accessor types, component types, normalised allowed?) that the loader reads
+_SEMANTICS: dict[str, tuple[tuple[str, ...], tuple[int, ...], bool | None]] = {
+    "POSITION": (("VEC3",), (5126,), False),
+    "NORMAL": (("VEC3",), (5126,), False),
+    "JOINTS_0": (("VEC4",), (5121, 5123), False),
+    "JOINTS_1": (("VEC4",), (5121, 5123), False),
+    "WEIGHTS_0": (("VEC4",), (5126, 5121, 5123), None),
+    "WEIGHTS_1": (("VEC4",), (5126, 5121, 5123), None),
+}
+
+
+class _Checker:
+    """Type and range checks of one document's JSON values; every failure is a one-line :class:`PrtError`."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def fail(self, message: str) -> None:
+        raise PrtError(f"{self.name}: {message}")
+
+    def that(self, condition: bool, message: str) -> None:
+        if not condition:
+            self.fail(message)
+
+    def list(self, value: Any, what: str) -> list[Any]:
+        if value is None:
+            return []
+        self.that(isinstance(value, list), f"{what} must be a JSON array, got {type(value).__name__}")
+        return value
+
+    def instance(self, value: Any, cls: type, what: str) -> None:
+        self.that(isinstance(value, cls), f"{what} must be a JSON object, got {type(value).__name__}")
+
+    def int(self, value: Any, what: str, minimum: int = 0, maximum: int | None = None,
+            default: int | None = None) -> int:
+        if value is None and default is not None:
+            return default
+        ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+        self.that(ok, f"{what} must be an integer, got {value!r:.40}")
+        self.that(value >= minimum and (maximum is None or value <= maximum),
+                  f"{what} = {value} is out of range [{minimum}, {'inf' if maximum is None else maximum}]")
+        return int(value)
+
+    def index(self, value: Any, size: int, what: str) -> int:
+        ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+        self.that(ok, f"{what} must be an integer index, got {value!r:.40}")
+        self.that(0 <= value < size, f"{what} = {value} is out of range (the file has {size})")
+        return int(value)
+
+    def numbers(self, value: Any, n: int, what: str) -> np.ndarray:
+        ok = isinstance(value, (list, tuple)) and all(
+            isinstance(x, (int, float, np.number)) and not isinstance(x, (bool, np.bool_)) for x in value)
+        self.that(ok, f"{what} must be an array of {n} numbers")
+        self.that(len(value) == n, f"{what} has {len(value)} numbers, expected {n}")
+        arr = np.asarray(value, dtype=np.float64)
+        self.that(bool(np.all(np.isfinite(arr))), f"{what} contains NaN or inf")
+        return arr
+
+
+@dataclass(frozen=True)
+class DocumentGraph:
+    """The node hierarchy of a validated document: ``parent (N,)`` int64 (-1 for a root), ``depth (N,)`` int64."""
+
+    parent: np.ndarray
+    depth: np.ndarray
+
+
+def _parse_glb(raw: bytes, name: str) -> tuple[bytes, bytes | None]:
+    """GLB container -> ``(JSON chunk, BIN chunk or None)``; header and chunk lengths are checked against the file."""
+    check(len(raw) >= 12, f"{name}: truncated GLB header ({len(raw)} bytes)")
+    magic, version, length = struct.unpack_from("<III", raw, 0)
+    check(magic == _GLB_MAGIC, f"{name}: not a binary glTF file (bad GLB magic)")
+    check(version == 2, f"{name}: unsupported GLB container version {version} (expected 2)")
+    check(length == len(raw), f"{name}: the GLB header says {length} bytes but the file has {len(raw)}"
+                              f"{' (truncated)' if length > len(raw) else ''}")
+    pos, k = 12, 0
+    json_chunk: bytes | None = None
+    bin_chunk: bytes | None = None
+    while pos < length:
+        check(pos + 8 <= length, f"{name}: truncated GLB chunk header at byte {pos}")
+        clen, ctype = struct.unpack_from("<II", raw, pos)
+        check(pos + 8 + clen <= length, f"{name}: GLB chunk {k} length {clen} runs past the end of the file "
+                                        f"({length - pos - 8} bytes left)")
+        body = raw[pos + 8:pos + 8 + clen]
+        if k == 0:
+            check(ctype == _GLB_JSON, f"{name}: the first GLB chunk is not JSON (type 0x{ctype:08x})")
+            json_chunk = body
+        elif ctype == _GLB_BIN:
+            check(k == 1, f"{name}: the GLB BIN chunk must be the second chunk, found it as chunk {k}")
+            bin_chunk = body
+        pos, k = pos + 8 + clen, k + 1
+    check(json_chunk is not None, f"{name}: GLB file has no JSON chunk")
+    assert json_chunk is not None
+    return json_chunk, bin_chunk
+
+
+def _load_buffers(gltf: Any, path: Path, bin_chunk: bytes | None) -> list[bytes]:
+    """The bytes of every buffer (GLB BIN chunk, base64 data URI or external file), each cut to its byteLength."""
+    import pygltflib
+
+    v = _Checker(path.name)
+    out: list[bytes] = []
+    for i, buf in enumerate(v.list(gltf.buffers, "buffers")):
+        v.instance(buf, pygltflib.Buffer, f"buffer {i}")
+        n = v.int(buf.byteLength, f"buffer {i} byteLength", minimum=1)
+        uri = buf.uri
+        if uri is None:
+            v.that(bin_chunk is not None, f"buffer {i} has no data (no uri and no GLB binary chunk)")
+            assert bin_chunk is not None
+            data = bin_chunk
+        elif not isinstance(uri, str):
+            v.fail(f"buffer {i} uri must be a string")
+        elif uri.startswith("data:"):
+            header, sep, payload = uri.partition(",")
+            v.that(bool(sep) and header.endswith(";base64"), f"buffer {i}: unsupported data URI (expected ';base64,')")
+            try:
+                data = base64.b64decode(payload, validate=True)
+            except (binascii.Error, ValueError):
+                v.fail(f"buffer {i}: bad base64 data URI")
+        else:
+            v.that("://" not in uri, f"buffer {i}: unsupported external URI {uri[:60]!r} (only relative file paths)")
+            f = path.parent / urllib.parse.unquote(uri)
+            v.that(f.is_file(), f"external buffer not found: {f}")
+            with open(f, "rb") as fh:
+                data = fh.read(n)
+        v.that(len(data) >= n, f"buffer {i} is shorter than its byteLength ({len(data)} < {n} bytes: truncated)")
+        out.append(bytes(data[:n]))
+    return out
+
+
+def read_document(path: str | os.PathLike[str]) -> tuple[Any, list[bytes]]:
+    """Parse a ``.glb``/``.gltf`` file -> ``(pygltflib.GLTF2, buffers)`` (the GLB container checked, buffers
+    decoded and cut to their byteLength), without :func:`validate_document`. Raises :class:`PrtError`."""
+    import pygltflib
+
+    path = Path(path)
+    raw = path.read_bytes()
+    bin_chunk = None
+    if raw[:4] == b"glTF":
+        text_bytes, bin_chunk = _parse_glb(raw, path.name)
+    else:
+        check(path.suffix.lower() != ".glb", f"{path.name}: not a binary glTF file (bad GLB magic)")
+        text_bytes = raw
+    try:
+        text = text_bytes.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise PrtError(f"{path.name}: the glTF JSON is not valid UTF-8") from None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            gltf = pygltflib.GLTF2.gltf_from_json(text)
+        except Exception as e:  # json / dataclasses_json raise assorted errors on malformed documents
+            raise PrtError(f"cannot parse glTF file {path.name}: {type(e).__name__}") from None
+    check(isinstance(gltf, pygltflib.GLTF2), f"cannot parse glTF file {path.name}: not a glTF document")
+    return gltf, _load_buffers(gltf, path, bin_chunk)
+
+
+def _depths(parent: np.ndarray, v: _Checker) -> np.ndarray:
+    """Depth of every node below its root; a cycle is a :class:`PrtError` (each node has at most one parent)."""
+    n = parent.size
+    depth = np.full(n, -1, dtype=np.int64)  # -1 unknown, -2 on the path being walked
+    for start in range(n):
+        path: list[int] = []
+        i = start
+        while i >= 0 and depth[i] == -1:
+            depth[i] = -2
+            path.append(i)
+            i = int(parent[i])
+        if i >= 0 and depth[i] == -2:
+            v.fail(f"the node hierarchy has a cycle through node {i}")
+        d = -1 if i < 0 else int(depth[i])
+        for k in reversed(path):
+            d += 1
+            depth[k] = d
+    return depth
+
+
+def validate_document(gltf: Any, buffers: list[bytes], name: str = "glTF") -> DocumentGraph:
+    """Check everything the loader uses before it is used; returns the node hierarchy.
+
+    The node graph (every node at most one parent, no cycles, no node its own child), every index
+    (scene, node, child, mesh, skin, accessor, bufferView, buffer, animation sampler), the types of
+    the accessors the loader reads, and every accessor's byte span
+    (``offset + stride * (count - 1) + element size <= bufferView length``, bufferView spans within
+    their buffers, ``stride >= element size``, ``count >= 1``), node transforms (16 / 3 / 4 / 3 finite
+    numbers) and animation channel shapes. Raises :class:`PrtError` with one line naming the problem.
+    """
+    import pygltflib
+
+    v = _Checker(name)
+    nodes = v.list(gltf.nodes, "nodes")
+    meshes = v.list(gltf.meshes, "meshes")
+    skins = v.list(gltf.skins, "skins")
+    accessors = v.list(gltf.accessors, "accessors")
+    views = v.list(gltf.bufferViews, "bufferViews")
+    v.that(len(v.list(gltf.buffers, "buffers")) == len(buffers), "buffers do not match the document")
+
+    for i, bv in enumerate(views):
+        v.instance(bv, pygltflib.BufferView, f"bufferView {i}")
+        b = v.index(bv.buffer, len(buffers), f"bufferView {i} buffer")
+        off = v.int(bv.byteOffset, f"bufferView {i} byteOffset", default=0)
+        length = v.int(bv.byteLength, f"bufferView {i} byteLength", minimum=1)
+        v.that(off + length <= len(buffers[b]), f"bufferView {i} (bytes {off}..{off + length}) runs past the end "
+                                               f"of buffer {b} ({len(buffers[b])} bytes)")
+        if bv.byteStride is not None:
+            v.int(bv.byteStride, f"bufferView {i} byteStride", minimum=4, maximum=252)
+
+    def span(view: Any, offset: Any, elem: int, count: int, what: str) -> None:
+        vi = v.index(view, len(views), f"{what} bufferView")
+        off = v.int(offset, f"{what} byteOffset", default=0)
+        stride = views[vi].byteStride or elem
+        v.that(stride >= elem, f"{what}: byteStride {stride} of bufferView {vi} is smaller than the element size "
+                               f"{elem} bytes")
+        end = off + stride * (count - 1) + elem
+        v.that(end <= views[vi].byteLength, f"{what}: {count} elements of {elem} bytes (stride {stride}, offset {off}) "
+                                            f"need {end} bytes but bufferView {vi} has {views[vi].byteLength}")
+
+    for i, acc in enumerate(accessors):
+        what = f"accessor {i}"
+        v.instance(acc, pygltflib.Accessor, what)
+        v.that(acc.componentType in _COMPONENT and not isinstance(acc.componentType, bool),
+               f"{what}: unsupported componentType {acc.componentType!r:.20}")
+        v.that(acc.type in _NCOMP, f"{what}: unsupported accessor type {acc.type!r:.20}")
+        v.that(acc.normalized is None or isinstance(acc.normalized, bool), f"{what}: normalized must be a boolean")
+        count = v.int(acc.count, f"{what} count", minimum=1)
+        size, ncomp = np.dtype(_COMPONENT[acc.componentType]).itemsize, _NCOMP[acc.type]
+        v.that(count * ncomp * 8 <= MAX_ACCESSOR_BYTES, f"{what}: count {count} would decode to "
+               f"{count * ncomp * 8 / 2**30:.1f} GiB (limit {MAX_ACCESSOR_BYTES / 2**30:.0f} GiB)")
+        if acc.bufferView is not None:
+            span(acc.bufferView, acc.byteOffset, size * ncomp, count, what)
+        if acc.sparse is not None:
+            sp = acc.sparse
+            v.instance(sp, pygltflib.Sparse, f"{what} sparse")
+            sc = v.int(sp.count, f"{what} sparse count", minimum=1, maximum=count)
+            v.instance(sp.indices, pygltflib.AccessorSparseIndices, f"{what} sparse indices")
+            v.instance(sp.values, pygltflib.AccessorSparseValues, f"{what} sparse values")
+            v.that(sp.indices.componentType in _UNSIGNED, f"{what}: unsupported sparse index componentType "
+                                                          f"{sp.indices.componentType!r:.20}")
+            span(sp.indices.bufferView, sp.indices.byteOffset,
+                 np.dtype(_COMPONENT[sp.indices.componentType]).itemsize, sc, f"{what} sparse indices")
+            span(sp.values.bufferView, sp.values.byteOffset, size * ncomp, sc, f"{what} sparse values")
+
+    def accessor(index: Any, what: str, types: tuple[str, ...], ctypes: tuple[int, ...],
+                 normalized: bool | None = None) -> int:
+        a = v.index(index, len(accessors), what)
+        acc = accessors[a]
+        v.that(acc.type in types and acc.componentType in ctypes,
+               f"{what}: accessor {a} is {acc.type} of componentType {acc.componentType}, expected "
+               f"{'/'.join(types)} of {'/'.join(map(str, ctypes))}")
+        if normalized is not None:
+            v.that(bool(acc.normalized) == normalized or acc.componentType == 5126,
+                   f"{what}: accessor {a} must {'' if normalized else 'not '}be normalized")
+        return a
+
+    for mi, mesh in enumerate(meshes):
+        v.instance(mesh, pygltflib.Mesh, f"mesh {mi}")
+        prims = v.list(mesh.primitives, f"mesh {mi} primitives")
+        v.that(len(prims) > 0, f"mesh {mi} has no primitives")
+        for pi, prim in enumerate(prims):
+            what = f"mesh {mi} primitive {pi}"
+            v.instance(prim, pygltflib.Primitive, what)
+            if prim.mode is not None:
+                v.int(prim.mode, f"{what} mode", maximum=6)
+            v.instance(prim.attributes, pygltflib.Attributes, f"{what} attributes")
+            counts: dict[str, int] = {}
+            for sem, idx in vars(prim.attributes).items():
+                if idx is None:
+                    continue
+                if sem in _SEMANTICS:
+                    types, ctypes, norm = _SEMANTICS[sem]
+                    a = accessor(idx, f"{what} {sem}", types, ctypes,
+                                 True if norm is None else norm)  # integer weights must be normalized
+                else:
+                    a = v.index(idx, len(accessors), f"{what} attribute {sem}")
+                counts[sem] = accessors[a].count
+            v.that(len(set(counts.values())) <= 1, f"{what}: attributes have different counts {counts}")
+            if prim.indices is not None:
+                a = accessor(prim.indices, f"{what} indices", ("SCALAR",), _UNSIGNED, False)
+                if prim.mode in (None, 4):
+                    v.that(accessors[a].count % 3 == 0, f"{what}: triangle index count {accessors[a].count} is "
+                                                        f"not a multiple of 3")
+
+    parent = np.full(len(nodes), -1, dtype=np.int64)
+    for i, node in enumerate(nodes):
+        what = f"node {i}"
+        v.instance(node, pygltflib.Node, what)
+        if node.mesh is not None:
+            v.index(node.mesh, len(meshes), f"{what} mesh")
+        if node.skin is not None:
+            v.index(node.skin, len(skins), f"{what} skin")
+        for c in v.list(node.children, f"{what} children"):
+            c = v.index(c, len(nodes), f"{what} child")
+            v.that(c != i, f"{what} lists itself as a child")
+            v.that(parent[c] < 0, f"node {c} has two parents (nodes {parent[c]} and {i})")
+            parent[c] = i
+        if node.matrix is not None:
+            v.numbers(node.matrix, 16, f"{what} matrix")
+        if node.translation is not None:
+            v.numbers(node.translation, 3, f"{what} translation")
+        if node.rotation is not None:
+            v.that(bool(np.linalg.norm(v.numbers(node.rotation, 4, f"{what} rotation")) > 1e-12),
+                   f"{what} rotation is a zero quaternion")
+        if node.scale is not None:
+            v.numbers(node.scale, 3, f"{what} scale")
+    depth = _depths(parent, v)
+
+    scenes = v.list(gltf.scenes, "scenes")
+    for si, scene in enumerate(scenes):
+        v.instance(scene, pygltflib.Scene, f"scene {si}")
+        for n in v.list(scene.nodes, f"scene {si} nodes"):
+            v.index(n, len(nodes), f"scene {si} node")
+    if gltf.scene is not None:
+        v.index(gltf.scene, len(scenes), "scene")
+
+    for si, skin in enumerate(skins):
+        v.instance(skin, pygltflib.Skin, f"skin {si}")
+        joints = [v.index(j, len(nodes), f"skin {si} joint") for j in v.list(skin.joints, f"skin {si} joints")]
+        v.that(len(joints) > 0, f"skin {si} has no joints")
+        v.that(len(set(joints)) == len(joints), f"skin {si} lists a joint node twice")
+        if skin.inverseBindMatrices is not None:
+            a = accessor(skin.inverseBindMatrices, f"skin {si} inverseBindMatrices", ("MAT4",), (5126,))
+            v.that(accessors[a].count == len(joints), f"skin {si}: {accessors[a].count} inverse bind matrices for "
+                                                      f"{len(joints)} joints")
+        if skin.skeleton is not None:
+            v.index(skin.skeleton, len(nodes), f"skin {si} skeleton")
+
+    for ai, anim in enumerate(v.list(gltf.animations, "animations")):
+        what = f"animation {ai}"
+        v.instance(anim, pygltflib.Animation, what)
+        samplers = v.list(anim.samplers, f"{what} samplers")
+        keys = []
+        for si, smp in enumerate(samplers):
+            v.instance(smp, pygltflib.AnimationSampler, f"{what} sampler {si}")
+            a_in = accessor(smp.input, f"{what} sampler {si} input", ("SCALAR",), (5126,))
+            a_out = accessor(smp.output, f"{what} sampler {si} output", tuple(_NCOMP), tuple(_COMPONENT), True)
+            interp = smp.interpolation or "LINEAR"
+            v.that(interp in _INTERPOLATIONS, f"{what} sampler {si}: unknown interpolation {interp!r:.30}")
+            keys.append((accessors[a_in].count, accessors[a_out], interp))
+        for ci, ch in enumerate(v.list(anim.channels, f"{what} channels")):
+            v.instance(ch, pygltflib.AnimationChannel, f"{what} channel {ci}")
+            s = v.index(ch.sampler, len(samplers), f"{what} channel {ci} sampler")
+            v.instance(ch.target, pygltflib.AnimationChannelTarget, f"{what} channel {ci} target")
+            v.that(isinstance(ch.target.path, str), f"{what} channel {ci}: target path must be a string")
+            if ch.target.node is None:
+                continue
+            v.index(ch.target.node, len(nodes), f"{what} channel {ci} target node")
+            if ch.target.path in _TRS_PATHS:
+                nkeys, out, interp = keys[s]
+                want = 3 * nkeys if interp == "CUBICSPLINE" else nkeys
+                v.that(out.type == _TRS_PATHS[ch.target.path] and out.count == want,
+                       f"{what} channel {ci} ({ch.target.path}, {interp}): sampler output is {out.count} x {out.type}, "
+                       f"expected {want} x {_TRS_PATHS[ch.target.path]}")
+    return DocumentGraph(parent, depth)
 
 
 class _Reader:
-    """Accessor data of one glTF document as numpy arrays."""
+    """Accessor data of one validated glTF document as numpy arrays."""
 
-    def __init__(self, gltf, path: Path) -> None:  # gltf: pygltflib.GLTF2
+    def __init__(self, gltf: Any, buffers: list[bytes], name: str) -> None:  # gltf: pygltflib.GLTF2
         self.gltf = gltf
-        self.path = path
-        self._buffers: dict[int, bytes] = {}
-
-    def buffer(self, i: int) -> bytes:
-        if i not in self._buffers:
-            buf = self.gltf.buffers[i]
-            uri = buf.uri
-            if uri is None:
-                data = self.gltf.binary_blob()
-                check(data is not None, f"{self.path.name}: buffer {i} has no data (no GLB binary chunk)")
-            elif uri.startswith("data:"):
-                data = base64.b64decode(uri.split(",", 1)[1])
-            else:
-                f = self.path.parent / uri
-                check(f.is_file(), f"{self.path.name}: external buffer not found: {f}")
-                data = f.read_bytes()
-            check(len(data) >= buf.byteLength, f"{self.path.name}: buffer {i} is shorter than its byteLength")
-            self._buffers[i] = data
-        return self._buffers[i]
+        self.buffers = buffers
+        self.name = name
 
     def _view(self, view_index: int, offset: int, dtype: np.dtype, count: int, ncomp: int) -> np.ndarray:
         view = self.gltf.bufferViews[view_index]
-        data = self.buffer(view.buffer)
+        data = self.buffers[view.buffer]
         start = (view.byteOffset or 0) + offset
         item = np.dtype(dtype).itemsize * ncomp
         stride = view.byteStride or item
         end = start + stride * (count - 1) + item if count else start
-        check(end <= len(data), f"{self.path.name}: accessor reads past the end of its buffer")
+        check(stride >= item and end <= len(data), f"{self.name}: accessor reads past the end of its buffer")
         raw = np.frombuffer(data, dtype=np.uint8, count=end - start, offset=start)
         if stride == item:
             return np.frombuffer(raw.tobytes(), dtype=dtype).reshape(count, ncomp)
@@ -96,38 +456,41 @@ class _Reader:
 
     def read(self, accessor_index: int) -> np.ndarray:
         """Accessor -> ``(count, ncomp)`` array (float64 for normalised/float data, int64 otherwise)."""
-        check(0 <= accessor_index < len(self.gltf.accessors), f"{self.path.name}: bad accessor {accessor_index}")
+        check(0 <= accessor_index < len(self.gltf.accessors), f"{self.name}: bad accessor {accessor_index}")
         acc = self.gltf.accessors[accessor_index]
-        check(acc.componentType in _COMPONENT, f"{self.path.name}: unsupported componentType {acc.componentType}")
-        check(acc.type in _NCOMP, f"{self.path.name}: unsupported accessor type {acc.type}")
         dtype, ncomp = np.dtype(_COMPONENT[acc.componentType]), _NCOMP[acc.type]
         if acc.bufferView is None:
             out = np.zeros((acc.count, ncomp), dtype=dtype)
         else:
             out = self._view(acc.bufferView, acc.byteOffset or 0, dtype, acc.count, ncomp).copy()
-        if acc.sparse is not None and acc.sparse.count:
+        if acc.sparse is not None:
             sp = acc.sparse
             idx = self._view(sp.indices.bufferView, sp.indices.byteOffset or 0,
                              np.dtype(_COMPONENT[sp.indices.componentType]), sp.count, 1)[:, 0].astype(np.int64)
+            check(bool(np.all(idx < acc.count)), f"{self.name}: accessor {accessor_index} has sparse indices out of "
+                                                 f"range [0, {acc.count})")
             out[idx] = self._view(sp.values.bufferView, sp.values.byteOffset or 0, dtype, sp.count, ncomp)
         if np.issubdtype(dtype, np.floating):
-            return out.astype(np.float64)
+            out64 = out.astype(np.float64)
+            check(bool(np.all(np.isfinite(out64))), f"{self.name}: accessor {accessor_index} contains NaN or inf")
+            return out64
         if acc.normalized:
             info = np.iinfo(dtype)
             return np.maximum(out.astype(np.float64) / info.max, -1.0)
         return out.astype(np.int64)
 
 
-def _node_matrix(node) -> np.ndarray:
+def _node_matrix(node: Any) -> np.ndarray:
     if node.matrix is not None:
         return np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T  # column-major
     return trs_matrix(node.translation, node.rotation, node.scale)
 
 
-def _node_trs(node) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _node_trs(node: Any, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if node.matrix is not None:
         m = _node_matrix(node)
         s = np.linalg.norm(m[:3, :3], axis=0)
+        check(bool(np.all(s > 1e-12)), f"{name}: the matrix of joint node {node.name or ''!r} is singular")
         return m[:3, 3].copy(), matrix_to_quat(m[:3, :3] / s), s
     t = np.zeros(3) if node.translation is None else np.asarray(node.translation, dtype=np.float64)
     r = np.array([0.0, 0.0, 0.0, 1.0]) if node.rotation is None else np.asarray(node.rotation, dtype=np.float64)
@@ -195,24 +558,37 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
 
     ``height``: if given, the character is uniformly scaled (:meth:`Character.scaled`) so that its rest
     mesh spans ``height`` units along z (e.g. ``1.8`` for Fox.glb, which is ~80 units tall in the file).
+    The document is checked by :func:`validate_document` before anything is read from it; every bad
+    input raises :class:`PrtError` with a one-line message.
     """
-    import pygltflib
-
     path = Path(path)
     check(path.is_file(), f"glTF file not found: {path}")
     check(path.suffix.lower() in (".glb", ".gltf"), f"unknown character file format {path.suffix!r}: {path.name}")
     check(bool(np.isfinite(fps)) and fps > 0, f"fps must be > 0, got {fps}")
-    try:
-        gltf = pygltflib.GLTF2().load(str(path))
-    except Exception as e:  # pygltflib raises assorted errors on malformed files
-        raise PrtError(f"cannot parse glTF file {path.name}: {type(e).__name__}") from None
-    check(gltf is not None and len(gltf.nodes) > 0, f"glTF file {path.name} has no nodes")
-    reader = _Reader(gltf, path)
+    if height is not None:
+        check(bool(np.isfinite(height)) and height > 0, f"height must be > 0, got {height}")
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numeric chatter: every result is checked for NaN/inf instead
+        gltf, buffers = read_document(path)
+        graph = validate_document(gltf, buffers, path.name)
+        try:
+            character = _build(gltf, buffers, graph, path, fps, name)
+        except np.linalg.LinAlgError:
+            raise PrtError(f"{path.name}: singular joint or bind transform") from None
+        if height is not None:
+            extent = float(np.ptp(character.rest_vertices[:, 2]))
+            check(extent > 0, f"{path.name}: the rest mesh has no vertical extent to scale")
+            character = character.scaled(height / extent)
+    return character
+
+
+def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fps: float,
+           name: str | None) -> Character:
+    """The loader proper, on a document :func:`validate_document` accepted."""
+    check(len(gltf.nodes) > 0, f"glTF file {path.name} has no nodes")
+    reader = _Reader(gltf, buffers, path.name)
     nodes = gltf.nodes
-    parent = -np.ones(len(nodes), dtype=np.int64)
-    for i, n in enumerate(nodes):
-        for c in n.children or []:
-            parent[c] = i
+    parent, depth = graph.parent, graph.depth
     skinned = [i for i, n in enumerate(nodes) if n.mesh is not None and n.skin is not None]
     check(len(skinned) > 0, f"glTF file {path.name} has no skinned mesh (no node with both a mesh and a skin)")
     skin_index = nodes[skinned[0]].skin
@@ -222,13 +598,7 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
     check(len(joint_nodes) > 0, f"glTF skin {skin_index} of {path.name} has no joints")
     joint_set = set(joint_nodes)
 
-    def depth(i: int) -> int:
-        d = 0
-        while parent[i] >= 0:
-            i, d = int(parent[i]), d + 1
-        return d
-
-    order = sorted(range(len(joint_nodes)), key=lambda k: (depth(joint_nodes[k]), k))  # parents first
+    order = sorted(range(len(joint_nodes)), key=lambda k: (depth[joint_nodes[k]], k))  # parents first
     old_to_new = np.empty(len(joint_nodes), dtype=np.int64)
     old_to_new[order] = np.arange(len(order))
     jnodes = [joint_nodes[k] for k in order]
@@ -238,7 +608,7 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
     for j, n in enumerate(jnodes):
         m = np.eye(4)
         a = int(parent[n])
-        while a >= 0 and a not in joint_set:
+        while a >= 0 and a not in joint_set:  # terminates: validate_document rejects cycles
             m = _node_matrix(nodes[a]) @ m
             a = int(parent[a])
         parents[j] = node_to_joint[a] if a >= 0 else -1
@@ -252,16 +622,20 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
         ibm = np.tile(np.eye(4), (len(joint_nodes), 1, 1))
     ibm = ibm[order]
     check(bool(np.all(np.isfinite(ibm))), f"{path.name}: inverse bind matrices contain NaN or inf")
+    check(bool(np.all(np.abs(np.linalg.det(ibm[:, :3, :3])) > 1e-30)), f"{path.name}: singular inverse bind matrix")
     # mesh space -> glTF world at the node rest pose; exact posing holds for any invertible G, and
     # for a rig bound at its rest pose G is the same for every joint (the bind pose is the rest pose)
     node_world = np.empty((len(nodes), 4, 4))
-    for i in sorted(range(len(nodes)), key=depth):
+    for i in np.argsort(depth, kind="stable"):
         node_world[i] = _node_matrix(nodes[i]) if parent[i] < 0 else node_world[parent[i]] @ _node_matrix(nodes[i])
     g = node_world[jnodes[0]] @ ibm[0]
-    check(abs(np.linalg.det(g[:3, :3])) > 1e-12, f"{path.name}: singular bind transform")
+    check(bool(np.all(np.isfinite(g))) and abs(np.linalg.det(g[:3, :3])) > 1e-12,
+          f"{path.name}: singular bind transform")
     cg = _C4 @ g
     bind_world = cg[None] @ np.linalg.inv(ibm)
     inverse_bind = ibm @ np.linalg.inv(cg)[None]
+    check(bool(np.all(np.isfinite(bind_world))) and bool(np.all(np.isfinite(inverse_bind))),
+          f"{path.name}: bind transforms overflow (NaN or inf)")
     bind_local = bind_world.copy()
     for j, p in enumerate(parents):
         if p >= 0:
@@ -291,6 +665,7 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
                 have_normals = False
             idx = (np.arange(p.shape[0]) if prim.indices is None else reader.read(prim.indices)[:, 0])
             check(idx.size % 3 == 0, f"{path.name}: triangle primitive index count is not a multiple of 3")
+            check(bool(np.all(idx < p.shape[0])), f"{path.name}: triangle indices out of range")
             pos_l.append(p)
             jnt_l.append(jt)
             wgt_l.append(wt)
@@ -302,6 +677,7 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
     wgt = np.concatenate([np.pad(w, ((0, 0), (0, k - w.shape[1]))) for w in wgt_l])
     pos = np.concatenate(pos_l)
     faces = np.concatenate(face_l)
+    check(faces.shape[0] > 0, f"{path.name}: the skinned mesh has no triangles")
     check(bool(np.all(np.isfinite(pos))), f"{path.name}: vertex positions contain NaN or inf")
     check(bool(np.all(np.isfinite(wgt))), f"{path.name}: skin weights contain NaN or inf")
     check(bool(np.all((faces >= 0) & (faces < pos.shape[0]))), f"{path.name}: triangle indices out of range")
@@ -314,7 +690,9 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
     wgt = wgt / sums[:, None]
     jnt = np.where(wgt > 0, old_to_new[jnt], 0)  # canonical index for zero weights (welding)
     pos = pos @ cg[:3, :3].T + cg[:3, 3]
+    check(bool(np.all(np.isfinite(pos.astype(np.float32)))), f"{path.name}: rest vertex positions overflow")
     pos_w, faces_w, (jnt_w, wgt_w), index = weld(pos, faces, jnt, wgt)
+    check(faces_w.shape[0] > 0, f"{path.name}: every triangle of the skinned mesh is degenerate")
     if have_normals:
         n = np.concatenate(nrm_l) @ np.linalg.inv(cg[:3, :3])  # inverse-transpose for normals
         acc = np.zeros((pos_w.shape[0], 3))
@@ -325,15 +703,13 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
         nrm_w = vertex_normals(pos_w, faces_w)
 
     # -- animations -------------------------------------------------------------------------------
-    rest_trs = [_node_trs(nodes[n]) for n in jnodes]
+    rest_trs = [_node_trs(nodes[n], path.name) for n in jnodes]
     clips: dict[str, Clip] = {}
     animations = [(ai, anim) for ai, anim in enumerate(gltf.animations or [])
-                  if any(c.target.node in node_to_joint and c.target.path in ("translation", "rotation", "scale")
-                         for c in anim.channels)]
-    names = clip_names([(ai, anim.name) for ai, anim in animations])
+                  if any(c.target.node in node_to_joint and c.target.path in _TRS_PATHS for c in anim.channels)]
+    names = clip_names([(ai, anim.name if isinstance(anim.name, str) else None) for ai, anim in animations])
     for (ai, anim), cname in zip(animations, names, strict=True):
-        chans = [c for c in anim.channels if c.target.node in node_to_joint and c.target.path in
-                 ("translation", "rotation", "scale")]
+        chans = [c for c in anim.channels if c.target.node in node_to_joint and c.target.path in _TRS_PATHS]
         data = []
         for c in chans:
             smp = anim.samplers[c.sampler]
@@ -343,7 +719,12 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
             data.append((c, times, reader.read(smp.output).astype(np.float64), smp.interpolation or "LINEAR"))
         t0 = min(d[1][0] for d in data)
         t1 = max(d[1][-1] for d in data)
-        nf = int(np.floor((t1 - t0) * fps + 1e-9)) + 1
+        frames = (t1 - t0) * fps
+        need = (frames + 1) * len(jnodes) * 16 * 8
+        check(need <= MAX_CLIP_BYTES, f"{path.name}: animation {ai} spans {t1 - t0:.6g} s = {frames + 1:.3g} frames at "
+                                      f"{fps:g} fps: {need / 2**30:.3g} GiB of joint transforms exceeds the "
+                                      f"{MAX_CLIP_BYTES / 2**30:.0f} GiB limit")
+        nf = int(np.floor(frames + 1e-9)) + 1
         t = t0 + np.arange(nf) / fps
         tr = np.stack([np.tile(r[0], (nf, 1)) for r in rest_trs], axis=1)
         ro = np.stack([np.tile(r[1], (nf, 1)) for r in rest_trs], axis=1)
@@ -357,14 +738,10 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
             else:
                 sc[:, j] = _sample(times, out, interp, t, False)
         local = prefix[None] @ trs_matrix(tr, quat_to_matrix(ro), sc)
+        check(bool(np.all(np.isfinite(local))), f"{path.name}: animation {ai} gives NaN or inf joint transforms "
+                                                f"(zero quaternion or overflow)")
         clips[cname] = Clip(cname, fps, local)
 
-    character = Character(name or path.stem, [nodes[n].name or f"joint_{n}" for n in jnodes], parents, bind_local,
-                          inverse_bind, pos_w.astype(np.float32), nrm_w.astype(np.float32), faces_w, jnt_w,
-                          wgt_w.astype(np.float32), clips)
-    if height is not None:
-        check(bool(np.isfinite(height)) and height > 0, f"height must be > 0, got {height}")
-        extent = float(np.ptp(character.rest_vertices[:, 2]))
-        check(extent > 0, f"{path.name}: the rest mesh has no vertical extent to scale")
-        character = character.scaled(height / extent)
-    return character
+    jname = [nodes[n].name if isinstance(nodes[n].name, str) and nodes[n].name else f"joint_{n}" for n in jnodes]
+    return Character(name or path.stem, jname, parents, bind_local, inverse_bind, pos_w.astype(np.float32),
+                     nrm_w.astype(np.float32), faces_w, jnt_w, wgt_w.astype(np.float32), clips)

@@ -59,3 +59,32 @@ class GltfBuilder:
         out += struct.pack("<II", len(bn), 0x004E4942) + bn
         path.write_bytes(out)
         return path
+
+
+def glb_bytes(doc: dict[str, Any], blob: bytes) -> bytes:
+    """A ``.glb`` container of a JSON document and one binary chunk (buffer 0 must have no ``uri``)."""
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    bn = bytes(blob) + b"\0" * (-len(blob) % 4)
+    total = 12 + 8 + len(js) + 8 + len(bn)
+    out = struct.pack("<III", 0x46546C67, 2, total) + struct.pack("<II", len(js), 0x4E4F534A) + js
+    return out + struct.pack("<II", len(bn), 0x004E4942) + bn
+
+
+def split_document(path: Path) -> tuple[dict[str, Any], bytes]:
+    """``(JSON document, buffer 0 bytes)`` of a ``.gltf`` file whose single buffer is a base64 data URI."""
+    doc = json.loads(path.read_text())
+    uri = doc["buffers"][0].pop("uri")
+    return doc, base64.b64decode(uri.split(",", 1)[1])
+
+
+def write_document(path: Path, doc: dict[str, Any], blob: bytes) -> Path:
+    """Write ``doc`` + ``blob`` (buffer 0) as ``.glb`` or, for a ``.gltf`` path, with a base64 data URI."""
+    doc = json.loads(json.dumps(doc, allow_nan=True))
+    if path.suffix == ".gltf":
+        if doc.get("buffers"):
+            doc["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(blob).decode()
+        path.write_text(json.dumps(doc))
+    else:
+        path.write_bytes(glb_bytes(doc, blob))
+    return path
