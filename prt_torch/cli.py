@@ -17,6 +17,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 #: sub-command name -> module path
 COMMANDS: dict[str, str] = {
@@ -31,6 +32,19 @@ COMMANDS: dict[str, str] = {
     "info": "prt_torch.commands.info",
     "bench": "prt_torch.commands.bench",
 }
+
+
+class PrtArgumentParser(argparse.ArgumentParser):
+    """An :class:`argparse.ArgumentParser` whose argument errors are ONE line, ``error: prt CMD: ...``, exit 2.
+
+    argparse prints a usage block before the message; the ``prt`` convention is one line per error
+    (``--help`` is unchanged). Sub-parsers inherit the class (``add_subparsers`` uses the parent's type).
+    """
+
+    def error(self, message: str) -> NoReturn:  # type: ignore[override]
+        """Print ``error: <prog>: <message>`` on one line to stderr and exit with status 2."""
+        text = " ".join(str(message).split())
+        self.exit(2, f"error: {self.prog}: {text}\n")
 
 
 def add_command_modules(parser: argparse.ArgumentParser, modules: dict[str, str], dest: str, run_attr: str) -> None:
@@ -48,7 +62,8 @@ def add_command_modules(parser: argparse.ArgumentParser, modules: dict[str, str]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="prt", description="prt_torch: learned PRT for animated characters.")
+    """The ``prt`` parser: one sub-parser per :data:`COMMANDS` entry, one-line argument errors."""
+    parser = PrtArgumentParser(prog="prt", description="prt_torch: learned PRT for animated characters.")
     add_command_modules(parser, COMMANDS, "command", "_run")
     return parser
 
@@ -61,14 +76,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except PrtError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except FileNotFoundError as exc:
-        print(f"error: file not found: {exc.filename or exc}", file=sys.stderr)
+        print(f"error: file not found: {_one_line(exc.filename or exc)}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a directory where a file was expected, permissions, a full disk, a refused connection
+        where = f": {exc.filename}" if exc.filename else ""
+        print(f"error: {_one_line(f'{exc.strerror or type(exc).__name__}{where}')}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("error: out of memory (a request over what this machine holds; see prt_torch/limits.py)",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+
+
+def _one_line(x: object) -> str:
+    """``x`` as text on one line (newlines and other control characters escaped)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(x))
 
 
 if __name__ == "__main__":

@@ -13,12 +13,15 @@ problem into a one-line :class:`prt_torch.PrtError` naming the key.
 
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from prt_torch import limits as L
 from prt_torch.bake.config import BakeConfig
 from prt_torch.errors import PrtError
 from prt_torch.fit.config import TrainConfig
@@ -26,11 +29,17 @@ from prt_torch.rig.config import CharacterConfig
 
 
 class RunConfig(BaseModel):
-    """The whole job: which character, how to bake it, how to fit it, where to write."""
+    """The whole job: which character, how to bake it, how to fit it, where to write.
 
-    model_config = ConfigDict(extra="forbid")
+    ``name`` is a directory name (letters, digits, ``_ . -``, not only dots, at most
+    :data:`~prt_torch.limits.MAX_NAME_LENGTH` characters); ``run_dir`` must not name an existing
+    file. For the built-in character the memory of one bake task is estimated from ``density`` and
+    checked against :data:`~prt_torch.limits.MAX_TASK_BYTES`.
+    """
 
-    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$", max_length=L.MAX_NAME_LENGTH)
     run_dir: Path | None = None
     character: CharacterConfig
     bake: BakeConfig = Field(default_factory=BakeConfig)
@@ -38,6 +47,40 @@ class RunConfig(BaseModel):
 
     #: directory of the config file, used to resolve relative paths inside it
     base_dir: Path | None = Field(default=None, exclude=True)
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        if set(v) <= {"."}:
+            raise ValueError(f"{v!r} is not a usable directory name")
+        return v
+
+    @field_validator("run_dir", mode="before")
+    @classmethod
+    def _run_dir_text(cls, v: Any) -> Any:
+        if isinstance(v, str) and (not v.strip() or "\x00" in v or len(v) > L.MAX_STRING_LENGTH):
+            raise ValueError("expected a directory path (non-empty, no NUL, at most "
+                             f"{L.MAX_STRING_LENGTH} characters)")
+        return v
+
+    @field_validator("run_dir")
+    @classmethod
+    def _run_dir(cls, v: Path | None) -> Path | None:
+        if v is not None:
+            check_run_dir(v)
+        return v
+
+    @model_validator(mode="after")
+    def _bake_memory(self) -> RunConfig:
+        if self.character.source == "builtin":
+            b = self.bake
+            vertices = int(L.BUILTIN_VERTICES_PER_DENSITY * self.character.density) + 1
+            try:
+                L.check_bake_task_memory(b.frames_per_task, vertices, b.order,
+                                         b.transfer_order if b.transfer else None)
+            except PrtError as exc:  # "bake.frames_per_task: ...": the formatter takes the key from it
+                raise ValueError(str(exc)) from None
+        return self
 
     def resolve(self, p: str | Path) -> Path:
         """Resolve a path from the config relative to the config file's directory."""
@@ -52,14 +95,41 @@ class RunConfig(BaseModel):
         return self.run_dir if self.run_dir is not None else Path("runs") / self.name
 
 
+def check_run_dir(path: str | os.PathLike[str], what: str = "run_dir") -> Path:
+    """``path`` as a :class:`Path` if it can be a run directory (missing, or an existing directory).
+
+    Raises :class:`ValueError` (a :class:`PrtError`) naming ``what`` when it is an existing file or below one.
+    """
+    p = Path(path)
+    try:
+        for q in (p, *p.parents):
+            if q.exists() and not q.is_dir():
+                raise PrtError(f"{what} {str(p)[:200]!r}: {str(q)[:200]!r} exists and is not a directory")
+    except (OSError, ValueError) as exc:
+        if isinstance(exc, PrtError):
+            raise
+        raise PrtError(f"{what} {str(p)[:200]!r}: not a usable path ({type(exc).__name__})") from None
+    return p
+
+
+def _one_line(text: str, limit: int = 300) -> str:
+    """``text`` with control characters escaped, cut to ``limit`` characters: safe for a one-line message."""
+    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
+    return out if len(out) <= limit else out[: limit - 3] + "..."
+
+
 def _format_validation_error(exc: ValidationError, source: str) -> str:
     err = exc.errors()[0]
-    loc = ".".join(str(p) for p in err["loc"]) or "<root>"
+    loc = _one_line(".".join(str(p) for p in err["loc"]), 120) or "<root>"
     if err["type"] == "extra_forbidden":
         return f"{source}: unknown config key '{loc}'"
     if err["type"] == "missing":
         return f"{source}: missing config key '{loc}'"
-    return f"{source}: bad value for '{loc}': {err['msg']}"
+    msg = err["msg"].removeprefix("Value error, ")
+    m = re.match(r"^([A-Za-z_][A-Za-z0-9_.]*): (.*)$", msg) if not err["loc"] else None
+    if m is not None:  # a model-level check that names its key first
+        loc, msg = m.group(1), m.group(2)
+    return _one_line(f"{source}: bad value for '{loc}': {msg}", 600)
 
 
 def config_from_dict(data: dict[str, Any], source: str = "config", base_dir: Path | None = None) -> RunConfig:
@@ -70,17 +140,95 @@ def config_from_dict(data: dict[str, Any], source: str = "config", base_dir: Pat
         cfg = RunConfig.model_validate(data)
     except ValidationError as exc:
         raise PrtError(_format_validation_error(exc, source)) from None
+    except RecursionError:
+        raise PrtError(f"{source}: config nested too deeply (at most {L.MAX_CONFIG_DEPTH} levels)") from None
     cfg.base_dir = base_dir
     return cfg
 
 
-def load_config(path: str | Path) -> RunConfig:
-    """Read and validate a YAML run config."""
-    path = Path(path)
-    if not path.is_file():
-        raise PrtError(f"config file not found: {path}")
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with bounded nesting depth and node count (aliases expanded).
+
+    The composer is recursive (a deeply nested document is a ``RecursionError`` deep inside PyYAML);
+    this one refuses documents nested more than :data:`~prt_torch.limits.MAX_CONFIG_DEPTH` levels or with
+    more than :data:`~prt_torch.limits.MAX_CONFIG_NODES` nodes before they get there.
+    """
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+        self._sizes: dict[int, int] = {}
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        self._depth += 1
+        try:
+            if self._depth > L.MAX_CONFIG_DEPTH:
+                mark = self.peek_event().start_mark
+                raise PrtError(f"nested deeper than {L.MAX_CONFIG_DEPTH} levels at line {mark.line + 1}")
+            node = super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+        if id(node) not in self._sizes:
+            if isinstance(node, yaml.SequenceNode):
+                children = list(node.value)
+            elif isinstance(node, yaml.MappingNode):
+                children = [n for kv in node.value for n in kv]
+            else:
+                children = []
+            self._sizes[id(node)] = 1 + sum(self._sizes.get(id(c), 1) for c in children)
+        if self._sizes[id(node)] > L.MAX_CONFIG_NODES:
+            raise PrtError(f"more than {L.MAX_CONFIG_NODES:,} values (aliases expanded) near line "
+                           f"{node.start_mark.line + 1}")
+        return node
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """One line from a PyYAML error: its problem and where."""
+    problem = getattr(exc, "problem", None) or getattr(exc, "context", None) or str(exc).split("\n")[0]
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    return _one_line(f"{problem}{where}", 200)
+
+
+def parse_yaml(text: str, source: str = "config") -> Any:
+    """Parse one YAML document with :class:`_BoundedLoader`; every failure is a one-line :class:`PrtError`."""
+    loader = None
     try:
-        data = yaml.safe_load(path.read_text())
+        loader = _BoundedLoader(text)  # the reader refuses control characters here
+        return loader.get_single_data()
+    except PrtError as exc:
+        raise PrtError(f"{source}: not a usable config ({exc})") from None
     except yaml.YAMLError as exc:
-        raise PrtError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        raise PrtError(f"{source}: not valid YAML ({_yaml_problem(exc)})") from None
+    except RecursionError:
+        raise PrtError(f"{source}: not a usable config (nested too deeply)") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # e.g. a timestamp out of range in a constructor
+        raise PrtError(f"{source}: not valid YAML ({_one_line(str(exc), 200)})") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def load_config(path: str | Path) -> RunConfig:
+    """Read and validate a YAML run config (UTF-8, at most :data:`~prt_torch.limits.MAX_CONFIG_BYTES`)."""
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise PrtError(f"config file not found: {path}")
+        size = path.stat().st_size
+        if size > L.MAX_CONFIG_BYTES:
+            raise PrtError(f"{path}: config file of {L.human_bytes(size)} is over the "
+                           f"{L.human_bytes(L.MAX_CONFIG_BYTES)} bound")
+        raw = path.read_bytes()[: L.MAX_CONFIG_BYTES + 1]
+    except PrtError:
+        raise
+    except OSError as exc:
+        raise PrtError(f"{path}: cannot read the config ({exc.strerror or type(exc).__name__})") from None
+    except ValueError:  # a NUL in the path
+        raise PrtError(f"config file not found: {_one_line(str(path), 200)}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise PrtError(f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
+    data = parse_yaml(text, source=str(path))
     return config_from_dict(data, source=str(path), base_dir=path.parent.resolve())

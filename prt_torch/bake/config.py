@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from prt_torch import limits as L
 
 
 class BakeConfig(BaseModel):
@@ -12,28 +14,37 @@ class BakeConfig(BaseModel):
     ``albedo``, ``seed``, ``ray_offset``, the clustering fields) is recorded in the dataset and
     checked on resume; ``frames_per_task``, ``workers``, ``scheduler`` and ``vertex_chunk`` only
     change how the work is split, never the result.
+
+    Every number is finite and bounded (:mod:`prt_torch.limits`); the memory of one task
+    (``frames_per_task`` frames of the character) is checked where the vertex count is known
+    (:class:`prt_torch.config.RunConfig` for the built-in character).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     order: int = Field(default=4, ge=1, le=6)  # SH order of local-frame visibility
-    n_rays: int = Field(default=512, ge=16)  # hemisphere rays per vertex
+    n_rays: int = Field(default=512, ge=16, le=L.MAX_RAYS)  # hemisphere rays per vertex
     transfer: bool = False  # also bake global-frame cosine-weighted diffuse transfer
     transfer_order: int = Field(default=6, ge=1, le=8)
     bounces: int = Field(default=0, ge=0, le=3)  # diffuse interreflection bounces (transfer only)
     albedo: float = Field(default=0.6, gt=0, lt=1)  # diffuse albedo for interreflection
-    frames_per_task: int = Field(default=8, ge=1)  # zarr chunk = one task's block of frames
-    workers: int = Field(default=0, ge=0)  # 0: one per CPU core
-    scheduler: str | None = None  # dask scheduler address, e.g. tcp://127.0.0.1:8786
-    seed: int = 0
+    frames_per_task: int = Field(default=8, ge=1, le=L.MAX_FRAMES_PER_TASK)  # zarr chunk = one task's block of frames
+    workers: int = Field(default=0, ge=0, le=L.MAX_WORKERS)  # 0: one per CPU core
+    scheduler: str | None = Field(default=None, max_length=L.MAX_STRING_LENGTH)  # dask scheduler address, e.g. tcp://127.0.0.1:8786
+    seed: int = Field(default=0, ge=0, le=L.MAX_SEED)
     #: ray origins are offset along the normal by this fraction of the rest mesh's bounding-box diagonal
     ray_offset: float = Field(default=1e-4, gt=0, lt=0.05)
     #: mean-shift bandwidth in skinning-weight space (pure single-bone vertices are sqrt(2) apart, so 0.45 keeps
     #: bones apart and gives blend zones their own clusters); None: sklearn estimate_bandwidth, clamped to 0.2..0.5
-    cluster_bandwidth: float | None = Field(default=0.45, gt=0)
+    cluster_bandwidth: float | None = Field(default=0.45, gt=0, le=10.0)
     #: at most this many local-frame clusters (the smallest are merged into their nearest neighbour)
-    max_clusters: int = Field(default=64, ge=1)
+    max_clusters: int = Field(default=64, ge=1, le=L.MAX_CLUSTERS)
     #: clusters with fewer vertices than this are merged into their nearest neighbour
-    min_cluster_size: int = Field(default=8, ge=1)
+    min_cluster_size: int = Field(default=8, ge=1, le=L.MAX_VERTICES)
     #: rays traced per Embree call (bounds memory: 12 bytes per ray per buffer)
-    vertex_chunk_rays: int = Field(default=1 << 20, ge=1024)
+    vertex_chunk_rays: int = Field(default=1 << 20, ge=1024, le=L.MAX_CHUNK_RAYS)
+
+    @field_validator("scheduler")
+    @classmethod
+    def _scheduler(cls, v: str | None) -> str | None:
+        return None if v is None else L.check_scheduler(v)

@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from threadpoolctl import threadpool_limits
 
+    from prt_torch import limits
     from prt_torch.bake.directions import rotated_frames, world_directions
     from prt_torch.bake.embree import RayScene
     from prt_torch.bake.plan import make_plan
@@ -47,11 +48,16 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.bake.store import open_dataset
     from prt_torch.bake.trace import RaySet
     from prt_torch.config import config_from_dict
-    from prt_torch.errors import PrtError
     from prt_torch.rig.vertex_frames import vertex_frames
 
-    if args.frames < 1 or args.rays < 16 or args.rounds < 1:
-        raise PrtError("bench bake needs --frames >= 1, --rays >= 16 and --rounds >= 1")
+    limits.check_float(args.density, "--density", limits.MIN_DENSITY, limits.MAX_DENSITY)
+    limits.check_int(args.rays, "--rays", 16, limits.MAX_RAYS)
+    limits.check_int(args.order, "--order", 1, 6)
+    limits.check_int(args.frames, "--frames", 1, limits.MAX_RANDOM_POSES)
+    limits.check_int(args.workers, "--workers", 0, limits.MAX_WORKERS)
+    limits.check_int(args.rounds, "--rounds", 1, limits.MAX_REPEATS)
+    limits.check_bake_task_memory(4, int(limits.BUILTIN_VERTICES_PER_DENSITY * args.density) + 1, args.order,
+                                  what="--density")
     workers = args.workers or os.cpu_count() or 1
     console = Console(stderr=True)
     with tempfile.TemporaryDirectory(prefix="prt-bench-bake-") as tmp:

@@ -43,11 +43,17 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from threadpoolctl import threadpool_limits
 
+    from prt_torch import limits
     from prt_torch.bake.store import open_dataset
+    from prt_torch.commands import _validate as V
     from prt_torch.config import load_config
     from prt_torch.fit.config import TrainConfig
     from prt_torch.fit.train import fit_mlp_kind, fit_ridge_kind, reduce_training
 
+    if args.max_iter is not None:
+        limits.check_int(args.max_iter, "--max-iter", 1, limits.MAX_ITERATIONS)
+    if args.dataset is not None:
+        V.input_path(args.dataset, "--dataset")
     console = Console(stderr=True)
     cfg = load_config(args.config).train if args.config else TrainConfig()
     if args.max_iter:

@@ -108,11 +108,22 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from prt_torch.errors import check
+    from prt_torch import limits
+    from prt_torch.commands import _validate as V
+    from prt_torch.errors import PrtError, check
     from prt_torch.export.onnx_file import initializer_bytes
     from prt_torch.player import Player
     from prt_torch.player.timing import FrameTimer
 
+    limits.check_int(args.frames, "--frames", 5, limits.MAX_FRAMES)
+    limits.check_int(args.warmup, "--warmup", 1, limits.MAX_REPEATS)
+    limits.check_int(args.raytrace_frames, "--raytrace-frames", 1, limits.MAX_REPEATS)
+    limits.check_int(args.rays, "--rays", 0, limits.MAX_RAYS)
+    limits.check_int(args.batch, "--batch", 1, limits.MAX_BATCH)
+    limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
+    if not args.brdf.strip():
+        raise PrtError("--brdf: empty name")
+    V.input_dir(args.run, "run directory")
     console = Console(stderr=True)
     run_dir = Path(args.run)
     check(args.frames >= 5 and args.warmup >= 1, "--frames must be >= 5 and --warmup >= 1")

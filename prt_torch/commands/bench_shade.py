@@ -48,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    from prt_torch import limits
     from prt_torch.brdf.analytic import Phong
     from prt_torch.brdf.rpo import build_rpo
     from prt_torch.errors import PrtError
@@ -55,12 +56,17 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.shade.lobes import rotate_lobes_to_frames
     from prt_torch.shade.rpo_shading import RPOTensors, shade_rpo
 
-    if not 1 <= args.vertices <= 10_000_000:
-        raise PrtError(f"--vertices must be in 1..10000000, got {args.vertices}")
+    limits.check_int(args.vertices, "--vertices", 1, limits.MAX_VERTICES)
     if not 2 <= args.order <= MAX_PRODUCT_ORDER:
         raise PrtError(f"--order must be in 2..{MAX_PRODUCT_ORDER}, got {args.order}")
-    if args.k < 1 or args.repeat < 1 or args.threads < 1:
-        raise PrtError("--k, --repeat and --threads must be positive")
+    limits.check_int(args.k, "--k", 1, limits.MAX_TERMS)
+    limits.check_int(args.repeat, "--repeat", 1, limits.MAX_REPEATS)
+    limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
+    c = args.order**2
+    # inputs (v, l_local, view, frames) and the largest per-vertex intermediates (a C x C product matrix per
+    # colour channel, the k view terms), float32, twice for temporaries
+    limits.check_array_memory(args.vertices * (3 * c * c + 3 * args.k * c + 8 * c + 16) * 4 * 2,
+                              f"bench shade with --vertices {args.vertices} at --order {args.order}")
     torch.set_num_threads(args.threads)
     err = Console(stderr=True)
     with err.status("building the RPO", spinner="dots"):

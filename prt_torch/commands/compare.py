@@ -28,22 +28,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
+    from prt_torch import limits
+    from prt_torch.commands import _validate as V
     from prt_torch.compare.methods import METHODS
     from prt_torch.compare.run import run_compare, table_markdown
     from prt_torch.errors import PrtError
     from prt_torch.rundir import RunDir
 
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
-    for m in methods or ():
-        if m not in METHODS:
-            raise PrtError(f"unknown method {m!r}: expected one of {', '.join(METHODS)}")
-    if args.frames is not None and args.frames < 1:
-        raise PrtError(f"--frames must be >= 1, got {args.frames}")
-    for name in ("image_frames", "reference_frames", "threads"):
-        if getattr(args, name) < (1 if name == "threads" else 0):
-            raise PrtError(f"--{name.replace('_', '-')} must be >= {1 if name == 'threads' else 0}")
-    if args.reference_rays < 1:
-        raise PrtError(f"--reference-rays must be >= 1, got {args.reference_rays}")
+    methods = V.names(args.methods, "--methods", tuple(METHODS), what="method") if args.methods is not None else None
+    if args.frames is not None:
+        limits.check_int(args.frames, "--frames", 1, limits.MAX_FRAMES)
+    limits.check_int(args.image_frames, "--image-frames", 0, limits.MAX_FRAMES)
+    limits.check_int(args.reference_frames, "--reference-frames", 0, limits.MAX_FRAMES)
+    limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
+    limits.check_int(args.reference_rays, "--reference-rays", 1, limits.MAX_RAYS)
+    if args.clip is not None and not args.clip.strip():
+        raise PrtError("--clip: empty clip name")
+    if args.env is not None:
+        V.input_file(args.env, "--env")
+    V.input_dir(args.run, "run directory")
     console = Console(stderr=True)
     result = run_compare(args.run, methods=methods, clip=args.clip, max_frames=args.frames, env=args.env,
                          image_frames=args.image_frames, reference_frames=args.reference_frames,

@@ -30,31 +30,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--brdf", default="phong", help="BRDF of the video and PNG (default: phong)")
     parser.add_argument("--max-frames", "--frames", dest="max_frames", type=int, default=None,
                         help="play at most this many held-out frames")
-    parser.add_argument("--size", default="640x400", help="image size HxW (default 640x400)")
+    parser.add_argument("--size", default="640x400", help="image size HxW (default 640x400; each side 1..8192)")
     parser.add_argument("--force", action="store_true", help="redo fit and export even if up to date")
 
 
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
+    from prt_torch import limits
     from prt_torch.bake.runner import bake
+    from prt_torch.brdf.rpo import CATALOGUE
+    from prt_torch.commands import _validate as V
     from prt_torch.config import load_config
     from prt_torch.errors import PrtError
-    from prt_torch.export.run import export_run
+    from prt_torch.export.run import DEFAULT_BRDFS, export_run
     from prt_torch.fit.train import train_dataset, train_key
     from prt_torch.io import atomic_write_json
     from prt_torch.rundir import RunDir
 
+    # every argument is checked before anything is baked or written
+    h, w = limits.parse_size(args.size)
+    if args.max_frames is not None:
+        limits.check_int(args.max_frames, "--max-frames", 1, limits.MAX_FRAMES)
+    if args.brdf.lower().endswith(".npz"):
+        V.input_file(args.brdf, "--brdf")
+    else:
+        V.names(args.brdf, "--brdf", tuple(b for b in DEFAULT_BRDFS if b in CATALOGUE))
+    if args.env is not None:
+        V.input_file(args.env, "--env")
+    if args.run_dir is not None:
+        V.run_dir(args.run_dir, "--run-dir")
     console = Console(stderr=True)
     t_all = time.perf_counter()
     cfg_path = Path(args.config) if args.config else default_config()
     cfg = load_config(cfg_path)
     if args.run_dir:
         cfg.run_dir = Path(args.run_dir)
-    try:
-        h, w = (int(x) for x in args.size.lower().split("x"))
-    except ValueError:
-        raise PrtError(f"bad --size {args.size!r}: expected HxW, e.g. 480x640") from None
+    if not cfg.character.heldout_clips:
+        raise PrtError(f"{cfg_path}: the demo needs a held-out clip (character.heldout_clips)")
     run = RunDir(cfg.out_dir)
     run.path.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}

@@ -36,20 +36,26 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.rundir import RunDir
 
     run_dir = Path(args.run)
+    from prt_torch import limits
+    from prt_torch.commands import _validate as V
+
+    if args.frames is not None:
+        limits.check_int(args.frames, "--frames", 2, limits.MAX_FRAMES)
+    if args.train_frames == 1:
+        raise PrtError(f"--train-frames must be 0 (all) or >= 2, got {args.train_frames}")
+    limits.check_int(args.train_frames, "--train-frames", 0, limits.MAX_FRAMES)
+    if args.image_frames is not None:
+        limits.check_int(args.image_frames, "--image-frames", 0, limits.MAX_FRAMES)
+    image_frames = None if args.image_frames is None else {"heldout": args.image_frames, "train": args.image_frames}
+    lights = V.names(args.lights, "--lights") if args.lights is not None else None
+    if args.dataset is not None:
+        V.input_path(args.dataset, "--dataset")
     if run_dir.suffix in (".yaml", ".yml"):
         from prt_torch.config import load_config
 
         run_dir = Path(load_config(run_dir).out_dir)
     if not run_dir.is_dir():
         raise PrtError(f"run directory not found: {run_dir}")
-    if args.frames is not None and args.frames < 2:
-        raise PrtError(f"--frames must be >= 2, got {args.frames}")
-    if args.train_frames < 0 or args.train_frames == 1:
-        raise PrtError(f"--train-frames must be 0 (all) or >= 2, got {args.train_frames}")
-    if args.image_frames is not None and args.image_frames < 0:
-        raise PrtError(f"--image-frames must be >= 0, got {args.image_frames}")
-    image_frames = None if args.image_frames is None else {"heldout": args.image_frames, "train": args.image_frames}
-    lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
     run_d = RunDir(run_dir)
     console = Console(stderr=True)
     ev = evaluate_run(run_d, dataset=args.dataset, max_frames=args.frames, train_frames=args.train_frames or None,

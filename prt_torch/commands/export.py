@@ -13,8 +13,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--kind", default=None, choices=["linear", "quadratic", "mlp"],
                         help="model kind (default: the run's default model)")
     parser.add_argument("--brdfs", default=None, help="comma-separated named BRDFs to export as RPOs")
-    parser.add_argument("--terms", type=int, default=8, help="BRDF terms k of the shading graph (default 8)")
-    parser.add_argument("--opset", type=int, default=17, help="ONNX opset (>= 17)")
+    parser.add_argument("--terms", type=int, default=8, help="BRDF terms k of the shading graph (default 8; 1..64)")
+    parser.add_argument("--opset", type=int, default=17, help="ONNX opset (17..20)")
     parser.add_argument("--exporter", default="torchscript", choices=["torchscript", "dynamo"])
     parser.add_argument("--force", action="store_true", help="re-export even if up to date")
 
@@ -24,15 +24,22 @@ def run(args: argparse.Namespace) -> int:
 
     from rich.console import Console
 
+    from prt_torch import limits
+    from prt_torch.brdf.rpo import CATALOGUE
+    from prt_torch.commands import _validate as V
     from prt_torch.export.run import DEFAULT_BRDFS, export_run
 
+    limits.check_int(args.terms, "--terms", 1, limits.MAX_TERMS)
+    limits.check_int(args.opset, "--opset", limits.MIN_OPSET, limits.MAX_OPSET)
+    brdfs = (tuple(V.names(args.brdfs, "--brdfs", tuple(CATALOGUE), what="BRDF")) if args.brdfs is not None
+             else DEFAULT_BRDFS)
     console = Console(stderr=True)
     run_dir = Path(args.run)
     if run_dir.suffix in (".yaml", ".yml"):
         from prt_torch.config import load_config
 
         run_dir = load_config(run_dir).out_dir
-    brdfs = tuple(b.strip() for b in args.brdfs.split(",") if b.strip()) if args.brdfs else DEFAULT_BRDFS
+    V.input_dir(run_dir, "run directory")
     with console.status(f"exporting {run_dir} ..."):
         meta = export_run(run_dir, kind=args.kind, brdfs=brdfs, n_terms=args.terms, opset=args.opset,
                           exporter=args.exporter, force=args.force, console=console)

@@ -21,25 +21,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="one fused ORT graph, visibility then shading, or visibility on a worker thread "
                              "overlapping the numpy posing (best when a core is free)")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
-    parser.add_argument("--size", default="480x640", help="image size HxW (default 480x640)")
+    parser.add_argument("--size", default="480x640", help="image size HxW (default 480x640; each side 1..8192)")
     parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
                                                         "a timings file in RUN)")
     parser.add_argument("--light-angle", type=float, default=0.0, help="rotate the lighting about z (degrees)")
 
 
 def run(args: argparse.Namespace) -> int:
+    import math
+
+    from prt_torch import limits
+    from prt_torch.commands import _validate as V
+    from prt_torch.errors import PrtError
+
+    # every argument is checked before anything is loaded or written
+    h, w = limits.parse_size(args.size)
+    if args.fps is not None:
+        limits.check_float(args.fps, "--fps", 0.0, limits.MAX_FPS, lo_open=True)
+    if args.max_frames is not None:
+        limits.check_int(args.max_frames, "--max-frames", 1, limits.MAX_FRAMES)
+    limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
+    if not math.isfinite(args.light_angle):
+        raise PrtError(f"--light-angle must be a finite number of degrees, got {args.light_angle}")
+    if not args.clip.strip():
+        raise PrtError("--clip: empty clip name")
+    V.input_dir(args.run, "run directory")
+    if args.env is not None:
+        V.input_file(args.env, "--env")
+    if args.brdf is not None and args.brdf.lower().endswith(".npz"):
+        V.input_file(args.brdf, "--brdf")
+    if args.out is not None:
+        V.output_file(args.out, "--out")
+    if args.png is not None:
+        V.output_dir(args.png, "--png")
+    if args.timings is not None:
+        V.output_file(args.timings, "--timings")
+
     import numpy as np
     from rich.console import Console
 
-    from prt_torch.errors import PrtError
     from prt_torch.player import Player
     from prt_torch.player.render import has_display
 
     console = Console(stderr=True)
-    try:
-        h, w = (int(x) for x in args.size.lower().split("x"))
-    except ValueError:
-        raise PrtError(f"bad --size {args.size!r}: expected HxW, e.g. 480x640") from None
     show = args.out is None and args.png is None
     if show and not has_display():
         raise PrtError("no display: pass --out video.mp4 or --png DIR to render offscreen")

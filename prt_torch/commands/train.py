@@ -21,20 +21,29 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+    from prt_torch.commands import _validate as V
     from prt_torch.config import load_config
+    from prt_torch.errors import PrtError
+    from prt_torch.fit.config import KINDS
     from prt_torch.fit.train import dataset_of, train_dataset
     from prt_torch.rundir import RunDir
 
+    kinds = V.names(args.kinds, "--kinds", KINDS, what="model kind") if args.kinds is not None else None
+    if args.run_dir is not None:
+        V.run_dir(args.run_dir, "--run-dir")
+    if args.dataset is not None:
+        V.input_path(args.dataset, "--dataset")
     cfg = load_config(args.config)
     if args.run_dir:
         cfg.run_dir = Path(args.run_dir)
     tcfg = cfg.train
-    if args.kinds:
-        kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    if kinds:
         tcfg = tcfg.model_validate({**tcfg.model_dump(), "kinds": kinds,
                                     "default_kind": tcfg.default_kind if tcfg.default_kind in kinds else kinds[-1]})
     run = RunDir(cfg.out_dir)
     dataset = Path(args.dataset) if args.dataset else dataset_of(cfg)
+    if not Path(dataset).exists():
+        raise PrtError(f"dataset not found: {dataset} (run `prt bake` first, or pass --dataset)")
     console = Console(stderr=True)
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=console,
                   transient=True) as progress:

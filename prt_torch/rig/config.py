@@ -9,6 +9,8 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationInfo, field_validator, model_validator
 
+from prt_torch import limits as L
+
 _INT = r"\s*(-?\d+)?\s*"
 _NUM = r"\s*([^:\s]+)?\s*"
 
@@ -18,7 +20,10 @@ def _parse_frames(text: str) -> tuple[int | None, int | None]:
     m = re.fullmatch(f"{_INT}:{_INT}", text)
     if m is None:
         raise ValueError(f"bad frame range {text!r}: expected 'start:stop' (integers, either optional)")
-    return tuple(None if g is None else int(g) for g in m.groups())  # type: ignore[return-value]
+    out = tuple(None if g is None else int(g) for g in m.groups())  # text is at most 64 characters
+    if any(g is not None and abs(g) > L.MAX_FRAME_INDEX for g in out):
+        raise ValueError(f"bad frame range {text!r}: frame indices must be within +-{L.MAX_FRAME_INDEX}")
+    return out  # type: ignore[return-value]
 
 
 def _parse_times(text: str) -> tuple[float | None, float | None]:
@@ -30,8 +35,9 @@ def _parse_times(text: str) -> tuple[float | None, float | None]:
             t = None if g is None else float(g)
         except ValueError:
             t = -1.0
-        if t is not None and not (math.isfinite(t) and t >= 0):
-            raise ValueError(f"bad time range {text!r}: expected 't0:t1' seconds (numbers >= 0, either optional)")
+        if t is not None and not (math.isfinite(t) and 0 <= t <= L.MAX_CLIP_SECONDS):
+            raise ValueError(f"bad time range {text!r}: expected 't0:t1' seconds (numbers in "
+                             f"[0, {L.MAX_CLIP_SECONDS:g}], either optional)")
         out.append(t)
     return out[0], out[1]
 
@@ -46,12 +52,12 @@ class ClipRange(BaseModel):
     ``Walk[0.5s:1.2s]``, or ``Walk`` for the whole clip).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    clip: str = Field(min_length=1)
-    frames: str | None = None
-    times: str | None = None
-    name: str | None = Field(default=None, min_length=1)
+    clip: str = Field(min_length=1, max_length=L.MAX_STRING_LENGTH)
+    frames: str | None = Field(default=None, max_length=64)
+    times: str | None = Field(default=None, max_length=64)
+    name: str | None = Field(default=None, min_length=1, max_length=L.MAX_STRING_LENGTH)
 
     @field_validator("frames")
     @classmethod
@@ -163,27 +169,41 @@ class CharacterConfig(BaseModel):
     limits (every glTF/BVH character): each non-root joint of a training frame is rotated by up to
     this many degrees about a random axis (``random_mode: uniform``), or the joints of the moved
     chains are (``sparse``). Characters with joint limits (the built-in humanoid) ignore it.
+
+    Every number is finite and bounded (:mod:`prt_torch.limits`): ``density`` in
+    ``[MIN_DENSITY, MAX_DENSITY]``, ``fps`` in ``(0, MAX_FPS]``, ``random_poses <= MAX_RANDOM_POSES``,
+    ``seed`` in ``0..MAX_SEED``.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    source: str = "builtin"
-    density: float = Field(default=1.0, gt=0)  # built-in character only: vertex density factor
-    height: float | None = Field(default=None, gt=0)  # glTF only: rescale to this height (load_gltf(height=...))
-    fps: float = Field(default=30.0, gt=0)  # sampling rate for clips
-    train_clips: list[ClipEntry] = Field(default_factory=list)
-    heldout_clips: list[ClipEntry] = Field(default_factory=list)
-    random_poses: int = Field(default=0, ge=0)  # random poses within joint limits added to training
+    source: str = Field(default="builtin", min_length=1, max_length=L.MAX_STRING_LENGTH)
+    # built-in character only: vertex density factor
+    density: float = Field(default=1.0, ge=L.MIN_DENSITY, le=L.MAX_DENSITY)
+    # glTF only: rescale to this height (load_gltf(height=...))
+    height: float | None = Field(default=None, gt=0, le=L.MAX_HEIGHT)
+    fps: float = Field(default=30.0, gt=0, le=L.MAX_FPS)  # sampling rate for clips
+    train_clips: list[ClipEntry] = Field(default_factory=list, max_length=L.MAX_LIST_LENGTH)
+    heldout_clips: list[ClipEntry] = Field(default_factory=list, max_length=L.MAX_LIST_LENGTH)
+    # random poses within joint limits added to training
+    random_poses: int = Field(default=0, ge=0, le=L.MAX_RANDOM_POSES)
     # how they are sampled (prt_torch.rig.random_pose): "uniform" moves every joint; "sparse" moves
     # 1..random_max_chains joint chains of the bind pose or (probability random_base_prob) of a random
     # train_clips frame, key poses joined by random_segment interpolated frames (1 = independent poses)
     random_mode: Literal["uniform", "sparse"] = "uniform"
-    random_max_chains: int = Field(default=3, ge=1)
+    random_max_chains: int = Field(default=3, ge=1, le=64)
     random_base_prob: float = Field(default=0.5, ge=0.0, le=1.0)
-    random_segment: int = Field(default=1, ge=1)
+    random_segment: int = Field(default=1, ge=1, le=L.MAX_FRAMES)
     random_near_base: float = Field(default=0.0, ge=0.0, le=1.0)  # sparse: P(moved joint lands near its base)
     random_perturb_deg: float = Field(default=20.0, ge=0.0, le=180.0)  # no joint limits: perturbation range
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, le=L.MAX_SEED)
+
+    @field_validator("source")
+    @classmethod
+    def _check_source(cls, v: str) -> str:
+        if "\x00" in v:
+            raise ValueError("a path must not contain a NUL character")
+        return v
 
     @field_validator("train_clips")
     @classmethod
