@@ -25,6 +25,7 @@ Layout (written by):
 ``demo_metrics.json``, ``*.timings.json``,
 ``play_timings.json``
 ``stages.json``                            every stage: its up-to-date key (``bake``, ``train``, ``export``)
+``.prt.lock``, ``.prt.lock.json``          :meth:`RunDir.lock` (``prt bake``): the lock file and its holder
 ========================================  =========================================================
 
 Loading methods import their owners lazily (``bake.store``, ``rig.character``, ``models``), so that
@@ -33,14 +34,19 @@ this module stays at the bottom of the layers and the player can use it without 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
+import re
+import socket
+import time
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from prt_torch.errors import PrtError, check
-from prt_torch.io import atomic_write_json
+from prt_torch.io import atomic_write_json, remove_stale_temporaries
 
 if TYPE_CHECKING:
     from prt_torch.bake.store import BakedDataset
@@ -76,6 +82,8 @@ _DEMO_VIDEO = "heldout.mp4"
 _DEMO_IMAGE = "comparison.png"
 _DEMO_METRICS = "demo_metrics.json"
 _PLAY_TIMINGS = "play_timings.json"
+_LOCK = ".prt.lock"
+_LOCK_INFO = ".prt.lock.json"
 
 
 def stage_key(obj: Any) -> str:
@@ -90,6 +98,41 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def _pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host exists."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
+
+
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+class _Hasher:
+    """sha256 of files, each inode hashed once (``model.pt`` is a hard link to a ``models/<kind>.pt``)."""
+
+    def __init__(self) -> None:
+        self._seen: dict[tuple[int, int, int, int], str] = {}
+
+    def sha256(self, path: Path) -> str:
+        st = path.stat()
+        key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+        if key not in self._seen:
+            self._seen[key] = file_sha256(path)
+        return self._seen[key]
+
+    def hashes(self, run: RunDir, paths: Iterable[Path]) -> dict[str, str]:
+        return {run.relative(p): self.sha256(Path(p)) for p in paths}
 
 
 class RunDir:
@@ -186,7 +229,7 @@ class RunDir:
         """``model.json``: conventions, dimensions, kinds, chosen hyper-parameters."""
         if not self.model_json.is_file():
             raise PrtError(f"model metadata not found: {self.model_json} (run `prt train CONFIG` first)")
-        return self.read_json(self.model_json)
+        return self.verify_model_meta(self._read_unit(self.model_json, "train"))
 
     # -- eval / compare ----------------------------------------------------------------------------
     @property
@@ -271,11 +314,12 @@ class RunDir:
         return Path(path).relative_to(self.path).as_posix()
 
     def export_meta(self) -> dict[str, Any]:
-        """``export.json``; :class:`PrtError` naming ``prt export`` when the run is not exported."""
+        """``export.json``, verified (:meth:`verify_export_meta`); :class:`PrtError` naming ``prt export`` when
+        the run is not exported or its export is incomplete."""
         check(self.path.is_dir(), f"run directory not found: {self.path}")
         check(self.export_json.is_file(), f"{self.path} is not exported ({_EXPORT_JSON} missing): run `prt export "
                                           f"{self.path}` first")
-        return self.read_json(self.export_json)
+        return self.verify_export_meta(self._read_unit(self.export_json, "export"))
 
     # -- demo / play -----------------------------------------------------------------------------
     @property
@@ -325,6 +369,181 @@ class RunDir:
         keys[stage] = key
         self.path.mkdir(parents=True, exist_ok=True)
         atomic_write_json(self.stages_json, keys)
+
+    # -- lock ------------------------------------------------------------------------------------
+    @property
+    def lock_path(self) -> Path:
+        """``.prt.lock``: the run directory's lock file (an OS file lock through ``filelock``)."""
+        return self.path / _LOCK
+
+    @property
+    def lock_info_path(self) -> Path:
+        """``.prt.lock.json``: who holds the lock (pid, host, stage, start time)."""
+        return self.path / _LOCK_INFO
+
+    @contextlib.contextmanager
+    def lock(self, stage: str, timeout: float = 0) -> Iterator[None]:
+        """Hold the run directory's exclusive lock while ``stage`` runs (``prt bake`` holds it for its whole run).
+
+        The lock is ``fcntl.flock`` on :attr:`lock_path` (``filelock``), so the kernel releases it when its
+        holder dies, even by SIGKILL; the holder info is written beside it atomically and removed on release.
+        Creates the run directory.
+
+        Args:
+            stage: what holds the lock (``bake``), named in the error another process gets.
+            timeout: seconds to wait for another holder; 0 fails at once.
+
+        Raises:
+            PrtError: ``runs/x is locked by prt bake (pid 123 on host, since 12:01:02)``, one line.
+        """
+        from filelock import FileLock, Timeout
+
+        check(bool(stage) and stage.replace("-", "_").isidentifier(), f"bad stage name {stage!r}")
+        self.path.mkdir(parents=True, exist_ok=True)
+        lk = FileLock(str(self.lock_path), timeout=timeout)
+        try:
+            lk.acquire()
+        except Timeout:
+            raise PrtError(f"{self.path} is locked by {self._lock_holder()}") from None
+        try:
+            atomic_write_json(self.lock_info_path, {"pid": os.getpid(), "host": socket.gethostname(), "stage": stage,
+                                                    "since": time.time()})
+            yield
+        finally:
+            with contextlib.suppress(OSError):
+                self.lock_info_path.unlink()
+            lk.release()
+
+    def _lock_holder(self, wait: float = 2.0) -> str:
+        """``prt bake (pid 123 on host, since 12:01:02)``: the live holder named by the info file; waits up to
+        ``wait`` seconds for a holder that has just taken the lock to write it."""
+        deadline = time.monotonic() + wait
+        host = socket.gethostname()
+        while True:
+            try:
+                info = json.loads(self.lock_info_path.read_text(encoding="utf-8"))
+                pid, where, stage, since = int(info["pid"]), str(info["host"]), str(info["stage"]), float(info["since"])
+            except (OSError, ValueError, KeyError, TypeError):
+                info = None
+            if info is not None and (where != host or _pid_alive(pid)):
+                t = time.localtime(since)
+                fmt = "%H:%M:%S" if t[:3] == time.localtime()[:3] else "%Y-%m-%d %H:%M:%S"
+                return f"prt {stage} (pid {pid} on {where}, since {time.strftime(fmt, t)})"
+            if time.monotonic() >= deadline:
+                return f"another process (see {self.lock_path})"
+            time.sleep(0.05)
+
+    # -- committed units (docs/DESIGN.md, failure model) -------------------------------------------
+    # A stage writes its files one by one (each atomically), then its metadata file LAST with the sha256 of
+    # every file of its unit: model.json (`files`) for train, export.json (`file_sha256`, and the source
+    # model's `model_sha256`) for export. The metadata file is the commit record; readers verify it.
+
+    @property
+    def artifact_dirs(self) -> tuple[Path, ...]:
+        """The directories stages write into (where stale temporaries are looked for)."""
+        return (self.path, self.models_dir, self.rpo_dir, self.report_dir, self.compare_dir)
+
+    def begin(self, stage: str, targets: Iterable[Path] = ()) -> list[Path]:
+        """Start (re)running ``stage``: first drop its key from ``stages.json`` (so a kill mid-stage never
+        leaves the old key claiming the new, partly written files up to date), then delete stale temporaries
+        in :attr:`artifact_dirs` (:func:`prt_torch.io.stale_temporaries`: those of the ``targets`` the stage is
+        about to write, and those whose writer is gone). Returns the deleted temporaries."""
+        check(stage in STAGES, f"unknown stage {stage!r}: expected one of {list(STAGES)}")
+        try:
+            keys = self.stage_keys()
+        except PrtError:  # a damaged stages.json only means that nothing is known to be up to date
+            keys = {stage: ""}
+        if stage in keys:
+            keys.pop(stage)
+            self.path.mkdir(parents=True, exist_ok=True)
+            atomic_write_json(self.stages_json, keys)
+        return remove_stale_temporaries(self.artifact_dirs, targets)
+
+    def unit_hashes(self, paths: Iterable[Path]) -> dict[str, str]:
+        """``{relative path: sha256}`` of ``paths`` (files of the run directory), for a commit record."""
+        return _Hasher().hashes(self, paths)
+
+    def _read_unit(self, path: Path, stage: str) -> dict[str, Any]:
+        try:
+            return self.read_json(path)
+        except PrtError as exc:
+            raise PrtError(f"{exc}: {self._rerun(stage)}") from None
+
+    def _rerun(self, stage: str) -> str:
+        return "run `prt train CONFIG` again" if stage == "train" else f"run `prt export {self.path}` again"
+
+    def _unit_error(self, path: Path, stage: str, problem: str) -> PrtError:
+        return PrtError(f"{path}: {problem} (incomplete or damaged {stage} output): {self._rerun(stage)}")
+
+    def _verify_files(self, path: Path, stage: str, hashes: Any, required: Iterable[str]) -> None:
+        """Every file of ``hashes`` (``{relative path: sha256}``) exists with that hash; ``required`` are listed."""
+        if not (isinstance(hashes, dict) and hashes and all(isinstance(k, str) and isinstance(v, str)
+                                                            and _SHA256.fullmatch(v) for k, v in hashes.items())):
+            raise self._unit_error(path, stage, "no valid file hashes")
+        missing = sorted(set(required) - set(hashes))
+        if missing:
+            raise self._unit_error(path, stage, f"no hash recorded for {missing[0]}")
+        hasher = _Hasher()
+        for rel, want in sorted(hashes.items()):
+            p = self.inside(rel)
+            if p is None:
+                raise self._unit_error(path, stage, f"bad file entry {rel!r}")
+            if not p.is_file():
+                raise self._unit_error(path, stage, f"{rel} is missing")
+            if hasher.sha256(p) != want:
+                raise self._unit_error(path, stage, f"{rel} is not the file it records (sha256 differs)")
+
+    def inside(self, rel: str) -> Path | None:
+        """``rel`` as a path inside the run directory (``None`` when it is absolute or leaves it)."""
+        r = Path(rel)
+        if not rel or r.is_absolute() or ".." in r.parts:
+            return None
+        return self.path / r
+
+    def verify_model_meta(self, meta: dict[str, Any]) -> dict[str, Any]:
+        """``model.json``'s content checked as the train unit's commit record: its keys and types, and every
+        model file (each kind's and the default one) present with the recorded sha256. Returns ``meta``."""
+        path, stage = self.model_json, "train"
+        kinds = meta.get("kinds")
+        if not (isinstance(kinds, list) and kinds and all(isinstance(k, str) and k for k in kinds)):
+            raise self._unit_error(path, stage, "missing or bad key 'kinds'")
+        if meta.get("default_kind") not in kinds:
+            raise self._unit_error(path, stage, "missing or bad key 'default_kind'")
+        for key in ("order", "n_coeffs", "n_vertices", "n_features"):
+            if not _is_int(meta.get(key)):
+                raise self._unit_error(path, stage, f"missing or bad key {key!r}")
+        try:
+            required = [self.relative(self.model_path(k)) for k in kinds] + [self.relative(self.model_path())]
+        except PrtError:
+            raise self._unit_error(path, stage, "missing or bad key 'kinds'") from None
+        self._verify_files(path, stage, meta.get("files"), required)
+        return meta
+
+    def verify_export_meta(self, meta: dict[str, Any]) -> dict[str, Any]:
+        """``export.json``'s content checked as the export unit's commit record: its keys and types, and every
+        graph, the frame data and every RPO file present with the recorded sha256 (``file_sha256``). Whether
+        the model it was exported from is still the run's model is the reader's question (``model_file``,
+        ``model_sha256``; the player asks it). Returns ``meta``."""
+        path, stage = self.export_json, "export"
+        for key in ("sh_order", "n_vertices", "n_features", "n_terms"):
+            if not _is_int(meta.get(key)):
+                raise self._unit_error(path, stage, f"missing or bad key {key!r}")
+        for key in ("character_hash", "frames_file", "model_file", "model_sha256"):
+            if not (isinstance(meta.get(key), str) and meta[key]):
+                raise self._unit_error(path, stage, f"missing or bad key {key!r}")
+        files, rpos = meta.get("files"), meta.get("rpo_files")
+        if not (isinstance(files, dict) and set(GRAPHS) <= set(files) and all(isinstance(v, str) for v in
+                                                                              files.values())):
+            raise self._unit_error(path, stage, "missing or bad key 'files'")
+        if not (isinstance(rpos, dict) and rpos and all(isinstance(k, str) and isinstance(v, str)
+                                                         for k, v in rpos.items())):
+            raise self._unit_error(path, stage, "missing or bad key 'rpo_files'")
+        model = self.inside(meta["model_file"])
+        if model is None or model.suffix != self.model_path().suffix:
+            raise self._unit_error(path, stage, "missing or bad key 'model_file'")
+        required = [files[g] for g in GRAPHS] + list(rpos.values()) + [meta["frames_file"]]
+        self._verify_files(path, stage, meta.get("file_sha256"), required)
+        return meta
 
     # -- helpers ---------------------------------------------------------------------------------
     @staticmethod

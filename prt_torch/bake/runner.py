@@ -7,11 +7,23 @@ Re-running skips finished blocks; a run killed at any moment (even SIGKILL) lose
 blocks in flight, and the resumed result is bitwise equal to an uninterrupted bake, whatever the
 number of workers or the backend (all randomness comes from the config's seeds, and BLAS runs
 single-threaded inside a task).
+
+Failure model: a bake holds the run directory's lock (:meth:`RunDir.lock`) for its whole run, so a
+second bake of the same run directory stops at once with one line naming the holder; the store is
+created in a temporary directory and renamed into place without replacing anything; on resume the
+store is verified (missing chunks of done blocks, crc32c/decode failures) and the damaged blocks'
+``done`` entries are cleared, so they are baked again (damaged creation-time arrays are rewritten
+from the plan). Local pool workers die with their parent (``PR_SET_PDEATHSIG`` on Linux, and a
+watchdog thread polling the parent pid everywhere), so a killed bake leaves no process writing.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
+import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -25,12 +37,16 @@ from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
     CONVENTIONS,
     FORMAT_VERSION,
+    PER_FRAME_RESULTS,
     BakedDataset,
+    StoreReport,
     check_compatible,
     create_store,
     library_versions,
     open_for_writing,
     remove_partial_files,
+    writable,
+    write_arrays,
 )
 from prt_torch.bake.trace import RaySet, trace_frame
 from prt_torch.errors import PrtError
@@ -62,13 +78,17 @@ class BlockStats:
 
 @dataclass
 class BakeResult:
-    """What a :func:`run_bake` call did: ``frames``/``rays`` baked now (skipped ones excluded)."""
+    """What a :func:`run_bake` call did: ``frames``/``rays`` baked now (skipped ones excluded);
+    ``repaired``: done frames found damaged and baked again, ``repaired_arrays`` creation-time arrays
+    rewritten (both included in ``frames``/not in ``skipped``)."""
 
     path: Path
     frames: int
     skipped: int
     rays: int
     seconds: float
+    repaired: int = 0
+    repaired_arrays: tuple[str, ...] = ()
 
     @property
     def frames_per_s(self) -> float:
@@ -86,6 +106,7 @@ class _Context:
     """Per-process state of a store's bake, built once per worker process (cached by path)."""
 
     group: Any
+    arrays: dict[str, Any]
     character: Character
     dense_w: np.ndarray
     labels: np.ndarray
@@ -106,7 +127,8 @@ def _context(dataset: str) -> _Context:
         params = dict(g.attrs["bake"])
         ch = RunDir(dataset).character(expect_hash=str(g.attrs["character_hash"]))
         labels = np.asarray(g["cluster"][:])
-        ctx = _Context(group=g, character=ch, dense_w=ch.dense_weights, labels=labels,
+        arrays = {name: writable(g[name]) for name in (*PER_FRAME_RESULTS, "done") if name in g}
+        ctx = _Context(group=g, arrays=arrays, character=ch, dense_w=ch.dense_weights, labels=labels,
                        axes=np.asarray(g["cluster_axis"][:]), bones=np.asarray(g["cluster_bone"][:]),
                        rays=RaySet.make(int(params["n_rays"]), int(params["order"]), ch.num_vertices,
                                         int(params["seed"])),
@@ -144,7 +166,7 @@ def bake_block(task: BlockTask) -> BlockStats:
             if tr is not None:
                 tr[i] = res.transfer
             rays += res.n_rays
-    g = ctx.group
+    g = ctx.arrays  # every chunk written, even one equal to the fill value: a missing chunk is damage
     sl = slice(task.f0, task.f1)
     g["positions"][sl] = pos.astype(np.float32)
     g["normals"][sl] = nrm.astype(np.float32)
@@ -154,6 +176,31 @@ def bake_block(task: BlockTask) -> BlockStats:
         g["transfer"][sl] = tr
     g["done"][sl] = np.ones(n, dtype=bool)  # last: the block counts as baked only once all its data is in
     return BlockStats(frames=n, rays=rays, seconds=time.perf_counter() - t0)
+
+
+def _worker_init(parent: int) -> None:
+    """Pool worker initializer: die with the parent process ``parent`` (pid).
+
+    Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` makes the kernel kill this worker when its parent dies.
+    Everywhere: a daemon thread polls ``os.getppid()`` every 0.2 s and exits the process once it is no
+    longer ``parent`` (an orphan is re-parented).
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            pr_set_pdeathsig = 1
+            ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no prctl: the watchdog remains
+            pass
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+    def watchdog() -> None:
+        while True:
+            time.sleep(0.2)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watchdog, name="prt-parent-watchdog", daemon=True).start()
 
 
 # -- main side -----------------------------------------------------------------------------------
@@ -181,19 +228,13 @@ def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any
     }
 
 
-def _create(path: Path, cfg: RunConfig, plan: BakePlan, attrs: dict[str, Any]) -> None:
+def _static_arrays(cfg: RunConfig, plan: BakePlan) -> dict[str, np.ndarray]:
+    """The arrays written whole when a store is created (deterministic: a repair rewrites them)."""
     b = cfg.bake
     ch = plan.character
     labels = cluster_vertices(ch.dense_weights, bandwidth=b.cluster_bandwidth, max_clusters=b.max_clusters,
                               min_size=b.min_cluster_size, seed=b.seed)
-    V = ch.num_vertices
-    per_frame: dict[str, tuple[tuple[int, ...], str]] = {
-        "positions": ((V, 3), "float32"), "normals": ((V, 3), "float32"), "frames": ((V, 3, 3), "float32"),
-        "visibility": ((V, b.order**2), "float32"),
-    }
-    if b.transfer:
-        per_frame["transfer"] = ((V, b.transfer_order**2), "float32")
-    arrays = {
+    return {
         "pose": plan.pose.astype(np.float32),
         "clip_id": plan.clip_id.astype(np.int32),
         "frame_index": plan.frame_index.astype(np.int32),
@@ -202,18 +243,38 @@ def _create(path: Path, cfg: RunConfig, plan: BakePlan, attrs: dict[str, Any]) -
         "cluster_axis": cluster_axes(ch.rest_vertices, labels),
         "cluster_bone": cluster_bones(ch.dense_weights, labels),
     }
-    create_store(path, arrays, per_frame, plan.n_frames, b.frames_per_task, attrs)
+
+
+def _create(path: Path, cfg: RunConfig, plan: BakePlan, attrs: dict[str, Any]) -> None:
+    b = cfg.bake
+    V = plan.character.num_vertices
+    per_frame: dict[str, tuple[tuple[int, ...], str]] = {
+        "positions": ((V, 3), "float32"), "normals": ((V, 3), "float32"), "frames": ((V, 3, 3), "float32"),
+        "visibility": ((V, b.order**2), "float32"),
+    }
+    if b.transfer:
+        per_frame["transfer"] = ((V, b.transfer_order**2), "float32")
+    create_store(path, _static_arrays(cfg, plan), per_frame, plan.n_frames, b.frames_per_task, attrs)
 
 
 def prepare(cfg: RunConfig, plan: BakePlan | None = None) -> tuple[Path, BakePlan]:
-    """Create the store (or check an existing one) and ``character.npz``; returns ``(dataset path, plan)``.
+    """Create the store (or check and repair an existing one) and ``character.npz``; returns
+    ``(dataset path, plan)``. Holds the run directory's lock meanwhile (:func:`run_bake` holds it for the
+    whole bake instead).
 
     Nothing is written when an existing store or character file belongs to another bake.
     """
-    from prt_torch.rig.character import Character
-
     require_embreex()
     plan = make_plan(cfg) if plan is None else plan
+    with RunDir(cfg.out_dir.resolve()).lock("bake"):
+        path, _ = _prepare(cfg, plan)
+    return path, plan
+
+
+def _prepare(cfg: RunConfig, plan: BakePlan) -> tuple[Path, StoreReport | None]:
+    """:func:`prepare` under the lock; also returns the verification report of an existing store."""
+    from prt_torch.rig.character import Character
+
     run = RunDir(cfg.out_dir.resolve())
     path = run.dataset_path
     char_path = run.character_path
@@ -236,9 +297,26 @@ def prepare(cfg: RunConfig, plan: BakePlan | None = None) -> tuple[Path, BakePla
         plan.character.save(char_path)
     if not exists:
         _create(path, cfg, plan, attrs)
-    else:
-        remove_partial_files(path)
-    return path, plan
+        return path, None
+    remove_partial_files(path)
+    return path, _repair(path, cfg, plan)
+
+
+def _repair(path: Path, cfg: RunConfig, plan: BakePlan) -> StoreReport:
+    """Verify an existing store (chunks present, checksums) and undo the damage it finds: clear the
+    ``done`` entries of damaged blocks (they are then baked as usual) and rewrite damaged creation-time
+    arrays from the plan. Returns the verification report (what was damaged)."""
+    report = BakedDataset(path).verify(checksums=True)
+    if report.ok:
+        return report
+    if report.static:
+        static = _static_arrays(cfg, plan)
+        write_arrays(path, {name: static[name] for name in report.static if name in static})
+    if report.blocks:
+        done = writable(open_for_writing(path)["done"])
+        for f0, f1 in report.blocks:
+            done[f0:f1] = np.zeros(f1 - f0, dtype=bool)
+    return report
 
 
 def block_tasks(path: Path, plan: BakePlan) -> list[BlockTask]:
@@ -262,7 +340,8 @@ def _run_local(tasks: list[BlockTask], workers: int) -> Iterator[BlockStats]:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn")) as ex:
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn"),
+                             initializer=_worker_init, initargs=(os.getpid(),)) as ex:
         futures = [ex.submit(bake_block, t) for t in tasks]
         try:
             for fut in as_completed(futures):
@@ -298,8 +377,25 @@ def run_bake(
     progress: bool = True,
     on_block: Callable[[BlockStats], None] | None = None,
 ) -> BakeResult:
-    """Bake (or resume) a run's dataset; see :func:`bake`. Returns what was done and how fast."""
-    path, plan = prepare(cfg)
+    """Bake (or resume) a run's dataset; see :func:`bake`. Returns what was done and how fast.
+
+    Holds the run directory's lock throughout: another bake of it is a one-line :class:`PrtError`.
+    """
+    require_embreex()
+    plan = make_plan(cfg)  # before the lock: a bad config creates nothing
+    with RunDir(cfg.out_dir.resolve()).lock("bake"):
+        return _run_bake(cfg, plan, workers, scheduler, progress, on_block)
+
+
+def _run_bake(cfg: RunConfig, plan: BakePlan, workers: int | None, scheduler: str | None, progress: bool,
+              on_block: Callable[[BlockStats], None] | None) -> BakeResult:
+    path, report = _prepare(cfg, plan)
+    repaired = sum(f1 - f0 for f0, f1 in report.blocks) if report is not None else 0
+    repaired_arrays = tuple(report.static) if report is not None else ()
+    if report is not None and not report.ok:
+        print(f"repairing {path}: {report.summary()}; re-baking {repaired} frame(s) in {len(report.blocks)} "
+              f"block(s)" + (f", rewriting {', '.join(repaired_arrays)}" if repaired_arrays else ""),
+              file=sys.stderr)
     tasks = block_tasks(path, plan)
     total = plan.n_frames
     todo = sum(t.f1 - t.f0 for t in tasks)
@@ -321,7 +417,8 @@ def run_bake(
     ds = BakedDataset(path)
     if ds.complete:
         RunDir(path).mark_done("bake", ds.key())
-    return BakeResult(path=path, frames=frames, skipped=total - todo, rays=rays, seconds=time.perf_counter() - t0)
+    return BakeResult(path=path, frames=frames, skipped=total - todo, rays=rays, seconds=time.perf_counter() - t0,
+                      repaired=repaired, repaired_arrays=repaired_arrays)
 
 
 def bake(cfg: RunConfig, workers: int | None = None, scheduler: str | None = None, progress: bool = True) -> Path:

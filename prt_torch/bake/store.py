@@ -7,9 +7,20 @@ chunk corrupt it: zarr-python #2729, #3682). A task writes its data arrays first
 so a SIGKILL at any moment loses only the blocks in flight.
 
 The store is created complete (every array, the static arrays, the attributes) in a temporary
-sibling directory and renamed into place; opening an existing store first compares its
-attributes with the new bake and raises :class:`PrtError` naming the first difference, without
-writing anything.
+sibling directory and renamed into place without replacing anything (the bake holds the run
+directory's lock, :meth:`prt_torch.rundir.RunDir.lock`, while it creates or resumes a store);
+opening an existing store first compares its attributes with the new bake and raises
+:class:`PrtError` naming the first difference, without writing anything.
+
+Integrity (format 2): every chunk of every array ends in a crc32c checksum (zarr v3's ``crc32c``
+codec after zstd), and every chunk is written even when it equals the fill value, so a chunk of a
+done block (or of a creation-time array) that is missing on disk is damage, not zeros.
+:meth:`BakedDataset.verify` lists the missing chunks (cheap: one ``stat`` per chunk) and, with
+``checksums=True``, the chunks that fail to decode; the readers (:meth:`BakedDataset.rows`,
+:meth:`BakedDataset.split`, the array properties) turn either into a one-line :class:`PrtError`
+naming the array and the frames, and ``prt bake`` re-bakes the damaged blocks. Format 1 stores
+(no checksums, fill-valued chunks not written) are still read and resumed; for them only the
+per-frame result arrays are checked for missing chunks.
 
 Arrays (``F`` frames, ``V`` vertices, ``C = order**2``, ``C6 = transfer_order**2``, ``Kc``
 clusters): ``pose (F, A)``, ``visibility (F, V, C)`` local frame, ``transfer (F, V, C6)`` world
@@ -23,8 +34,12 @@ these three and the posed normals/skin).
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
+import itertools
 import os
 import shutil
+import sys
 import uuid
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -38,7 +53,10 @@ from prt_torch.errors import PrtError
 if TYPE_CHECKING:
     from prt_torch.rig.character import Character
 
-FORMAT_VERSION = 1
+#: the layout written by this code: 2 = crc32c on every chunk, every chunk written (1: neither)
+FORMAT_VERSION = 2
+#: store formats this code reads and resumes
+READABLE_FORMATS = (1, 2)
 
 #: per-frame float arrays written by the bake tasks, with their per-frame shapes
 PER_FRAME_RESULTS = ("positions", "normals", "frames", "visibility", "transfer")
@@ -56,6 +74,13 @@ CONVENTIONS = {
     "rays": "shared spherical-Fibonacci hemisphere set rotated per vertex about n by a fixed seeded angle",
 }
 
+#: arrays with one entry per frame that are written at creation (the rest of the frame arrays are
+#: ``PER_FRAME_RESULTS`` and ``done``, written by the bake tasks)
+FRAME_STATIC = ("pose", "clip_id", "frame_index")
+#: arrays a re-bake of their damaged blocks repairs
+REBAKED = (*PER_FRAME_RESULTS, "done")
+#: what a damage message tells the user to do
+REPAIR_HINT = "re-run `prt bake` with this run's config to repair it"
 
 
 def library_versions() -> dict[str, str]:
@@ -71,9 +96,45 @@ def library_versions() -> dict[str, str]:
     return out
 
 
+def _codecs() -> dict[str, Any]:
+    """``create_array`` keyword arguments of format 2: zstd (zarr's default, level 0), then a crc32c checksum."""
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    return {"compressors": [ZstdCodec(level=0), Crc32cCodec()], "config": {"write_empty_chunks": True}}
+
+
+def _rename_noreplace(src: Path, dst: Path) -> None:
+    """Rename ``src`` to ``dst`` atomically, failing with ``FileExistsError`` when ``dst`` exists.
+
+    Linux: ``renameat2(RENAME_NOREPLACE)``; elsewhere (or where the call is unsupported) an existence
+    check then ``os.rename``, which still never replaces a non-empty directory.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            renameat2 = libc.renameat2
+        except (OSError, AttributeError):
+            renameat2 = None
+        if renameat2 is not None:
+            at_fdcwd, rename_noreplace = -100, 1
+            if renameat2(at_fdcwd, os.fsencode(src), at_fdcwd, os.fsencode(dst), rename_noreplace) == 0:
+                return
+            err = ctypes.get_errno()
+            if err == errno.EEXIST:
+                raise FileExistsError(err, os.strerror(err), str(dst))
+            if err not in (errno.ENOSYS, errno.EINVAL):  # EINVAL: a file system without RENAME_NOREPLACE
+                raise OSError(err, os.strerror(err), str(dst))
+    if os.path.lexists(dst):
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(dst))
+    os.rename(src, dst)
+
+
 def create_store(path: Path, arrays: dict[str, np.ndarray], per_frame: dict[str, tuple[tuple[int, ...], str]],
                  n_frames: int, frames_per_task: int, attrs: dict[str, Any]) -> None:
-    """Create a complete store atomically (temporary sibling directory, then rename).
+    """Create a complete store atomically (temporary sibling directory, then a rename that replaces nothing).
+
+    The caller holds the run directory's lock (:meth:`prt_torch.rundir.RunDir.lock`): only the holder
+    removes temporary stores left by a killed creation, so concurrent bakes never delete each other's.
 
     Args:
         path: the ``dataset.zarr`` directory to create (must not exist).
@@ -82,7 +143,7 @@ def create_store(path: Path, arrays: dict[str, np.ndarray], per_frame: dict[str,
         per_frame: result arrays to create empty: name -> (per-frame shape, dtype); filled by tasks.
         n_frames: ``F``.
         frames_per_task: chunk length along the frame axis.
-        attrs: group attributes (JSON-serialisable).
+        attrs: group attributes (JSON-serialisable; ``format_version`` says the layout).
     """
     import zarr
 
@@ -92,29 +153,51 @@ def create_store(path: Path, arrays: dict[str, np.ndarray], per_frame: dict[str,
     for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a creation that was killed
         shutil.rmtree(stale, ignore_errors=True)
     tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    codecs = _codecs() if int(attrs.get("format_version", FORMAT_VERSION)) >= 2 else {}
     try:
         g = zarr.open_group(str(tmp), mode="w-", zarr_format=3)
         for name, (shape, dtype) in per_frame.items():
             g.create_array(name, shape=(n_frames, *shape), chunks=(frames_per_task, *shape), dtype=dtype,
-                           fill_value=0)
-        g.create_array("done", shape=(n_frames,), chunks=(frames_per_task,), dtype=bool, fill_value=False)
+                           fill_value=0, **codecs)
+        g.create_array("done", shape=(n_frames,), chunks=(frames_per_task,), dtype=bool, fill_value=False,
+                       **codecs)
         for name, a in arrays.items():
             if a.ndim >= 1 and a.shape[0] == n_frames and name not in ("faces", "cluster"):
                 chunks = (frames_per_task, *a.shape[1:])
             else:
                 chunks = a.shape if a.size else tuple(max(1, s) for s in a.shape)
-            g.create_array(name, data=a, chunks=chunks)
+            g.create_array(name, data=a, chunks=chunks, **codecs)
         g.attrs.update(attrs)
-        os.replace(tmp, path)  # atomic for a fresh target on POSIX (fails if path appeared meanwhile)
+        try:
+            _rename_noreplace(tmp, path)
+        except FileExistsError:
+            raise PrtError(f"{path} appeared while this bake was creating it (another bake?); "
+                           "nothing overwritten: run `prt bake` again to resume it") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 
+def write_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Overwrite whole creation-time arrays of a store (repairs them; shapes must match)."""
+    g = open_for_writing(path)
+    for name, a in arrays.items():
+        arr = writable(g[name])
+        if tuple(arr.shape) != a.shape:
+            raise PrtError(f"{path}: array '{name}' has shape {tuple(arr.shape)}, the bake has {a.shape}")
+        arr[...] = a
+
+
+def writable(a: Any) -> Any:
+    """``a`` writing every chunk, fill-valued ones included (a missing chunk then always means damage)."""
+    return a.with_config({"write_empty_chunks": True})
+
+
 def check_compatible(path: Path, attrs: dict[str, Any], existing: dict[str, Any]) -> None:
     """Raise :class:`PrtError` naming the first difference between a store's attributes and a new bake."""
-    if existing.get("format_version") != FORMAT_VERSION:
-        raise PrtError(f"{path}: not a prt_torch dataset of format {FORMAT_VERSION}; move it away or delete it")
+    if existing.get("format_version") not in READABLE_FORMATS:
+        raise PrtError(f"{path}: not a prt_torch dataset of format {'/'.join(map(str, READABLE_FORMATS))}; "
+                       "move it away or delete it")
     if existing.get("character_hash") != attrs["character_hash"]:
         raise PrtError(f"{path} was baked from another character (hash {str(existing.get('character_hash'))[:12]} "
                        f"!= {attrs['character_hash'][:12]}); nothing written")
@@ -125,6 +208,56 @@ def check_compatible(path: Path, attrs: dict[str, Any], existing: dict[str, Any]
                            f"{new_bake.get(key)!r}; nothing written")
     if existing.get("frames_fingerprint") != attrs["frames_fingerprint"]:
         raise PrtError(f"{path} holds a different frame list (clips, fps, random poses); nothing written")
+
+
+@dataclass(frozen=True)
+class Damage:
+    """A damaged chunk of a store: array ``array``, frames ``[start, stop)`` (``None`` for an array
+    without a frame axis), and what is wrong (``missing chunk`` or ``unreadable chunk (...)``)."""
+
+    array: str
+    start: int | None
+    stop: int | None
+    problem: str
+
+    def where(self) -> str:
+        """``array 'visibility' frames 8-11`` (or ``array 'faces'``)."""
+        frames = "" if self.start is None or self.stop is None else f" frames {self.start}-{self.stop - 1}"
+        return f"array '{self.array}'{frames}"
+
+    def message(self, path: Path) -> str:
+        """The one-line error of this damage, with the repair hint."""
+        return f"{path}: {self.where()}: {self.problem}; {REPAIR_HINT}"
+
+
+@dataclass
+class StoreReport:
+    """What :meth:`BakedDataset.verify` found: ``damage`` (empty when the store is intact), ``chunks``
+    checked, ``checksums`` whether their contents were decoded too."""
+
+    damage: list[Damage]
+    chunks: int
+    checksums: bool
+
+    @property
+    def ok(self) -> bool:
+        return not self.damage
+
+    @property
+    def blocks(self) -> list[tuple[int, int]]:
+        """Frame blocks ``(f0, f1)`` to re-bake: those with a damaged per-frame result or ``done`` chunk."""
+        return sorted({(d.start, d.stop) for d in self.damage
+                       if d.array in REBAKED and d.start is not None and d.stop is not None})
+
+    @property
+    def static(self) -> list[str]:
+        """Creation-time arrays (``pose``, ``faces``, ``cluster``, ...) with a damaged chunk."""
+        return sorted({d.array for d in self.damage if d.array not in REBAKED})
+
+    def summary(self) -> str:
+        """One line: how many damaged chunks, in which arrays."""
+        names = sorted({d.array for d in self.damage})
+        return f"{len(self.damage)} damaged chunk(s) in {', '.join(names)}" if names else "no damage"
 
 
 @dataclass
@@ -156,6 +289,11 @@ class BakedDataset:
     Small arrays (``pose``, ``clip_id``, ``faces``, ``cluster``, ...) are cached; the big per-frame
     ones (``visibility``, ``transfer``, ``positions``, ``normals``, ``frames``) are read anew on
     every access; use :meth:`array` for zarr slicing without reading everything.
+
+    Every read through this class checks that the chunks it needs exist (a missing chunk of a done
+    frame would otherwise read as zeros) and turns a chunk that fails to decode (crc32c mismatch,
+    zstd error) into a one-line :class:`PrtError` naming the array and frames; :meth:`verify`
+    checks the whole store.
     """
 
     def __init__(self, path: Path, validate: bool = True) -> None:
@@ -169,6 +307,7 @@ class BakedDataset:
         except Exception as exc:
             raise PrtError(f"{self.path}: not a zarr dataset ({type(exc).__name__})") from None
         self.attrs: dict[str, Any] = dict(self._group.attrs)
+        self._arrays: dict[str, Any] = {}
         if not validate:
             return
         for name in ("pose", "visibility", "clip_id", "frame_index", "done", "cluster"):
@@ -221,10 +360,13 @@ class BakedDataset:
         return int(round(self.n_coeffs**0.5))
 
     def array(self, name: str) -> Any:
-        """The zarr array ``name`` (for sliced reads)."""
-        if name not in self._group:
-            raise PrtError(f"{self.path}: dataset has no '{name}' array")
-        return self._group[name]
+        """The zarr array ``name`` (for sliced reads; unchecked: prefer :meth:`rows`)."""
+        a = self._arrays.get(name)
+        if a is None:
+            if name not in self._group:
+                raise PrtError(f"{self.path}: dataset has no '{name}' array")
+            a = self._arrays[name] = self._group[name]
+        return a
 
     def __contains__(self, name: str) -> bool:
         return name in self._group
@@ -233,42 +375,42 @@ class BakedDataset:
     @cached_property
     def pose(self) -> np.ndarray:
         """``(F, A)`` float32 pose features."""
-        return np.asarray(self._group["pose"][:])
+        return self._read("pose")
 
     @cached_property
     def clip_id(self) -> np.ndarray:
         """``(F,)`` int32."""
-        return np.asarray(self._group["clip_id"][:])
+        return self._read("clip_id")
 
     @cached_property
     def frame_index(self) -> np.ndarray:
         """``(F,)`` int32."""
-        return np.asarray(self._group["frame_index"][:])
+        return self._read("frame_index")
 
     @cached_property
     def faces(self) -> np.ndarray:
         """``(T, 3)`` int32."""
-        return np.asarray(self._group["faces"][:])
+        return self._read("faces")
 
     @cached_property
     def cluster(self) -> np.ndarray:
         """``(V,)`` int32 local-frame cluster of each vertex."""
-        return np.asarray(self._group["cluster"][:])
+        return self._read("cluster")
 
     @cached_property
     def cluster_axis(self) -> np.ndarray:
         """``(Kc, 3)`` float32 rest-pose PCA axis of each cluster."""
-        return np.asarray(self.array("cluster_axis")[:])
+        return self._read("cluster_axis")
 
     @cached_property
     def cluster_bone(self) -> np.ndarray:
         """``(Kc,)`` int32 dominant bone of each cluster."""
-        return np.asarray(self.array("cluster_bone")[:])
+        return self._read("cluster_bone")
 
     @property
     def done(self) -> np.ndarray:
         """``(F,)`` bool completion mask (read fresh: a bake may be running)."""
-        return np.asarray(self._group["done"][:], dtype=bool)
+        return self._read("done").astype(bool, copy=False)
 
     @property
     def complete(self) -> bool:
@@ -278,27 +420,27 @@ class BakedDataset:
     @property
     def visibility(self) -> np.ndarray:
         """``(F, V, C)`` float32 local-frame SH visibility."""
-        return np.asarray(self._group["visibility"][:])
+        return self._read("visibility")
 
     @property
     def transfer(self) -> np.ndarray | None:
         """``(F, V, C6)`` float32 world-frame diffuse transfer, or None if not baked."""
-        return np.asarray(self._group["transfer"][:]) if "transfer" in self._group else None
+        return self._read("transfer") if "transfer" in self._group else None
 
     @property
     def positions(self) -> np.ndarray:
         """``(F, V, 3)`` float32 posed positions (world)."""
-        return np.asarray(self._group["positions"][:])
+        return self._read("positions")
 
     @property
     def normals(self) -> np.ndarray:
         """``(F, V, 3)`` float32 posed unit normals (world)."""
-        return np.asarray(self._group["normals"][:])
+        return self._read("normals")
 
     @property
     def frames(self) -> np.ndarray:
         """``(F, V, 3, 3)`` float32 vertex frames, rows ``(t, b, n)``."""
-        return np.asarray(self._group["frames"][:])
+        return self._read("frames")
 
     # -- splits --------------------------------------------------------------------------------
     def clip_mask(self, name: str) -> np.ndarray:
@@ -331,13 +473,160 @@ class BakedDataset:
         return np.flatnonzero(self.clip_mask(clip) & self.done)
 
     def rows(self, rows: np.ndarray, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-        """Per-frame arrays ``names`` at dataset ``rows`` (one orthogonal zarr read each)."""
+        """Per-frame arrays ``names`` at dataset ``rows`` (one orthogonal zarr read each).
+
+        A missing chunk of a done frame, or a chunk that fails its checksum or does not decode, is a
+        one-line :class:`PrtError` naming the array and frames (re-running ``prt bake`` repairs it).
+        """
         rows = np.asarray(rows, dtype=np.int64)
-        out = {}
-        for name in names:
-            a = self.array(name)
-            out[name] = np.asarray(a.get_orthogonal_selection((rows,) + (slice(None),) * (len(a.shape) - 1)))
-        return out
+        done = self.done if any(n in REBAKED for n in names) else None
+        return {name: self._read(name, rows, done) for name in names}
+
+    # -- integrity -----------------------------------------------------------------------------
+    @property
+    def format_version(self) -> int:
+        """The store's layout (:data:`FORMAT_VERSION`; 1 = no checksums, fill-valued chunks not written)."""
+        return int(self.attrs.get("format_version", 1))
+
+    def _frame_axis(self, name: str) -> bool:
+        return name in REBAKED or name in FRAME_STATIC
+
+    def _chunk_range(self, name: str, i: int) -> tuple[int | None, int | None]:
+        """Frames ``[f0, f1)`` of first-axis chunk ``i`` of a frame array, ``(None, None)`` otherwise."""
+        if not self._frame_axis(name):
+            return None, None
+        a = self.array(name)
+        c = int(a.chunks[0])
+        return i * c, min(int(a.shape[0]), (i + 1) * c)
+
+    def _required(self, name: str, i: int, done: np.ndarray | None) -> bool:
+        """Whether first-axis chunk ``i`` of ``name`` must exist on disk."""
+        if name == "done":
+            return False  # a missing done chunk means "not baked yet"
+        if name in PER_FRAME_RESULTS:
+            f0, f1 = self._chunk_range(name, i)
+            return done is not None and bool(done[f0:f1].any())
+        return self.format_version >= 2  # creation-time arrays: every chunk is written since format 2
+
+    def _chunks(self, name: str, first: Any = None) -> list[tuple[int, ...]]:
+        """Chunk coordinates of ``name`` whose first index is in ``first`` (default: all)."""
+        a = self.array(name)
+        grid = [-(-int(s) // int(c)) for s, c in zip(a.shape, a.chunks, strict=True)]
+        if not grid:
+            return [()]
+        firsts = range(grid[0]) if first is None else first
+        rest = list(itertools.product(*(range(n) for n in grid[1:])))
+        return [(int(i), *r) for i in firsts for r in rest]
+
+    def _chunk_file(self, name: str, coords: tuple[int, ...]) -> Path:
+        return self.path / name / self.array(name).metadata.encode_chunk_key(coords)
+
+    def _selection(self, name: str, coords: tuple[int, ...]) -> tuple[slice, ...]:
+        a = self.array(name)
+        return tuple(slice(i * int(c), min(int(s), (i + 1) * int(c)))
+                     for i, s, c in zip(coords, a.shape, a.chunks, strict=True))
+
+    def _damage(self, name: str, coords: tuple[int, ...], problem: str) -> Damage:
+        f0, f1 = self._chunk_range(name, coords[0]) if coords else (None, None)
+        return Damage(name, f0, f1, problem)
+
+    def _check_chunk(self, name: str, coords: tuple[int, ...]) -> Damage | None:
+        """Decode one chunk; its :class:`Damage` when that fails."""
+        try:
+            self.array(name)[self._selection(name, coords)]
+        except Exception as exc:
+            return self._damage(name, coords, _unreadable(exc))
+        return None
+
+    def _read(self, name: str, rows: np.ndarray | None = None, done: np.ndarray | None = None) -> np.ndarray:
+        """Array ``name`` (all of it, or first-axis ``rows``), its chunks checked; see :meth:`rows`."""
+        a = self.array(name)
+        frame = self._frame_axis(name)
+        if frame:
+            c = int(a.chunks[0])
+            firsts = range(-(-int(a.shape[0]) // c)) if rows is None else np.unique(rows // c)
+        else:
+            firsts = None
+        if name in PER_FRAME_RESULTS and done is None:
+            done = self.done
+        for coords in self._chunks(name, firsts):
+            if coords and self._required(name, coords[0], done) and not self._chunk_file(name, coords).is_file():
+                raise PrtError(self._damage(name, coords, "missing chunk (would read as zeros)").message(self.path))
+        try:
+            if rows is None or not frame:
+                return np.asarray(a[...])
+            return np.asarray(a.get_orthogonal_selection((rows,) + (slice(None),) * (len(a.shape) - 1)))
+        except Exception as exc:
+            for coords in self._chunks(name, firsts):
+                bad = self._check_chunk(name, coords)
+                if bad is not None:
+                    raise PrtError(bad.message(self.path)) from None
+            raise PrtError(f"{self.path}: array '{name}': {_unreadable(exc)}; {REPAIR_HINT}") from None
+
+    def _done_checked(self) -> tuple[np.ndarray, list[Damage]]:
+        """The done mask with damaged ``done`` chunks read as not done, and those chunks' damage."""
+        a = self.array("done")
+        try:
+            return np.asarray(a[...], dtype=bool), []
+        except Exception:
+            pass
+        done = np.zeros(a.shape, dtype=bool)
+        damage = []
+        for coords in self._chunks("done"):
+            sel = self._selection("done", coords)
+            try:
+                done[sel] = np.asarray(a[sel], dtype=bool)
+            except Exception as exc:
+                damage.append(self._damage("done", coords, _unreadable(exc)))
+        return done, damage
+
+    def verify(self, checksums: bool = False) -> StoreReport:
+        """Check the store: every chunk of a done block (and, format 2, of every creation-time array)
+        exists on disk; with ``checksums`` also decode each existing chunk (crc32c, zstd).
+
+        Without ``checksums`` this costs one ``stat`` per chunk; with them, one read of the store.
+        A damaged ``done`` chunk counts as not done (and as damage: its block is re-baked).
+        """
+        done, damage = self._done_checked()
+        n = len(self._chunks("done"))
+        for name in sorted(self._group.array_keys()):
+            if name == "done":
+                continue
+            present = []
+            for coords in self._chunks(name):
+                if name in PER_FRAME_RESULTS and not self._required(name, coords[0], done):
+                    continue  # not baked yet: nothing to check
+                n += 1
+                if self._chunk_file(name, coords).is_file():
+                    present.append(coords)
+                elif self._required(name, coords[0] if coords else 0, done):
+                    damage.append(self._damage(name, coords, "missing chunk (would read as zeros)"))
+            if checksums:
+                damage += self._decode_all(name, present)
+        return StoreReport(damage=damage, chunks=n, checksums=checksums)
+
+    def _decode_all(self, name: str, coords: list[tuple[int, ...]], batch_bytes: int = 64 << 20) -> list[Damage]:
+        """Decode the chunks ``coords`` of ``name``: runs of consecutive frame chunks (up to ``batch_bytes``)
+        in one read each, chunk by chunk only within a run that fails."""
+        a = self.array(name)
+        if not coords or len(a.shape) == 0 or any(c[1:] != (0,) * (len(c) - 1) for c in coords) \
+                or any(int(s) != int(c) for s, c in zip(a.shape[1:], a.chunks[1:], strict=True)):
+            return [d for d in (self._check_chunk(name, c) for c in coords) if d is not None]
+        per = max(1, batch_bytes // max(1, int(np.prod(a.chunks)) * a.dtype.itemsize))
+        c0 = int(a.chunks[0])
+        runs: list[list[tuple[int, ...]]] = []
+        for c in coords:
+            if runs and c[0] == runs[-1][-1][0] + 1 and len(runs[-1]) < per:
+                runs[-1].append(c)
+            else:
+                runs.append([c])
+        damage = []
+        for run in runs:
+            try:
+                a[run[0][0] * c0:min(int(a.shape[0]), (run[-1][0] + 1) * c0)]
+            except Exception:
+                damage += [d for d in (self._check_chunk(name, c) for c in run) if d is not None]
+        return damage
 
     def split(self, split: str, extra: tuple[str, ...] = (), max_frames: int | None = None,
               contiguous: bool = False, rows: np.ndarray | None = None) -> SplitData:
@@ -389,6 +678,14 @@ class BakedDataset:
     def __repr__(self) -> str:
         return (f"BakedDataset({str(self.path)!r}, frames={self.n_frames}, vertices={self.n_vertices}, "
                 f"order={self.sh_order}, done={int(self.done.sum())}/{self.n_frames})")
+
+
+def _unreadable(exc: BaseException) -> str:
+    """One line saying why a chunk did not decode."""
+    msg = str(exc).splitlines()[0] if str(exc) else ""
+    if "checksum" in msg.lower():
+        return "chunk fails its crc32c checksum (corrupted)"
+    return f"chunk does not decode ({type(exc).__name__}: {msg[:80]})"
 
 
 def open_dataset(path: str | os.PathLike[str]) -> BakedDataset:

@@ -12,7 +12,14 @@ Writes into the run directory (file names: :class:`prt_torch.rundir.RunDir`):
   player needs besides the character file.
 
 Up to date when the run's ``export`` stage key (model file hash + export settings) is unchanged and
-every file exists (:meth:`prt_torch.rundir.RunDir.is_current`).
+every file exists (:meth:`prt_torch.rundir.RunDir.is_current`) and verifies against the metadata.
+
+One committed unit: the stage first drops its ``stages.json`` key and stale temporaries
+(:meth:`RunDir.begin`), writes the frame data, the RPO files and the graphs (each atomically), then the
+export metadata LAST with the sha256 of each of them (``file_sha256``) and of the model it was exported
+from (``model_file``, ``model_sha256``): it is the commit record. A kill before it is renamed leaves files
+that disagree with the old metadata, which every reader (:meth:`RunDir.export_meta`, the player's
+:class:`prt_torch.player.bundle.RunBundle`) refuses with one line saying to re-run ``prt export``.
 
 Each graph is checked by ``onnx.checker`` and against torch on held-out poses (relative error <= 1e-4
 in float32, else :class:`PrtError`). Every file is written atomically.
@@ -27,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import check
+from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_write_json
 from prt_torch.rundir import GRAPHS, RunDir, file_sha256, stage_key
 
-FORMAT = "prt_torch.export/1"
+FORMAT = "prt_torch.export/2"  # /2: file_sha256, model_file (the commit record)
 
 #: default BRDFs exported with every run (:func:`prt_torch.brdf.rpo.builtin_rpo` names)
 DEFAULT_BRDFS = ("lambert", "phong", "ggx", "ward")
@@ -96,6 +103,18 @@ def export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None
                brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
                exporter: str = "torchscript", force: bool = False,
                console: Any = None) -> dict[str, Any]:
+    """Export a trained run to ONNX while holding the run directory's lock (:meth:`RunDir.lock`); see
+    :func:`_export_run` for the arguments. Returns the export metadata."""
+    run = RunDir.of(run_dir).require()
+    with run.lock("export"):
+        return _export_run(run, kind=kind, brdfs=brdfs, n_terms=n_terms, opset=opset, exporter=exporter,
+                           force=force, console=console)
+
+
+def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None,
+                brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
+                exporter: str = "torchscript", force: bool = False,
+                console: Any = None) -> dict[str, Any]:
     """Export a trained run to ONNX; returns the ``export.json`` content.
 
     Args:
@@ -130,7 +149,11 @@ def export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None
     outputs = (run.export_json, run.frames_path, *(run.graph_path(g) for g in GRAPHS),
                *(run.rpo_path(b) for b in brdfs))
     if not force and run.is_current("export", key, outputs):
-        return run.export_meta()
+        try:
+            return run.export_meta()
+        except PrtError:
+            pass  # damaged since: export again
+    run.begin("export", outputs)
     character = run.character()
     check(character.num_vertices == model.n_vertices,
           f"model has {model.n_vertices} vertices but {run.character_path} has {character.num_vertices}")
@@ -199,8 +222,11 @@ def export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None
         "inputs": {"visibility": ["pose"], "shading": list(SHADING_INPUTS), "fused": list(FUSED_INPUTS)},
         "brdfs": sorted(rpo_files), "rpo_files": rpo_files, "parity": parity,
         "parity_rows": held["rows"].tolist(), "export_seconds": time.perf_counter() - t0,
+        "model_file": run.relative(mpath),
+        "file_sha256": run.unit_hashes([run.frames_path, *(run.rpo_path(b) for b in rpo_files),
+                                        *(run.graph_path(g) for g in GRAPHS)]),
     }
-    atomic_write_json(run.export_json, meta)
+    atomic_write_json(run.export_json, meta)  # the commit record: written last
     run.mark_done("export", key)
     return meta
 

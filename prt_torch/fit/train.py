@@ -6,8 +6,15 @@ when present) and writes into the run directory (:class:`prt_torch.rundir.RunDir
     models/<kind>.pt     one VisibilityModel per kind (packed state dict + config)
     model.pt             the default kind (mlp when trained): a hard link, not a second copy
     model.json           metadata: conventions, order, V, A, kinds, dataset/character hash,
-                         chosen alphas/neurons per cluster, CV scores, fit times
+                         chosen alphas/neurons per cluster, CV scores, fit times, and ``files``:
+                         the sha256 of every file above and of metrics.json
     metrics.json         visibility errors per kind on train and held-out frames
+
+One committed unit: the stage first drops its ``stages.json`` key and stale temporaries
+(:meth:`RunDir.begin`), writes the models, the default link and the metrics (each atomically), then
+``model.json`` LAST (the commit record), then its ``stages.json`` key. A kill before ``model.json`` is
+renamed leaves files that disagree with the old ``model.json``: every reader (:meth:`RunDir.model_meta`,
+:func:`prt_torch.models.load_model`, ``prt eval``) refuses them with one line saying to re-run ``prt train``.
 """
 
 from __future__ import annotations
@@ -303,6 +310,12 @@ def _metadata(info: BakedDataset, cfg: TrainConfig, red: Reduced, fits: dict[str
     }
 
 
+def unit_files(run: RunDir, kinds: list[str]) -> list[Path]:
+    """The files of the train unit besides ``model.json``: each kind's model, the default model, the metrics.
+    ``model.json`` records their sha256 (``files``) and is written after them: it commits the unit."""
+    return [*(run.model_path(k) for k in kinds), run.model_path(), run.metrics_json]
+
+
 def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
     """The ``train`` stage key: the training settings and the dataset's content key."""
     return stage_key({"train": cfg.model_dump(mode="json"), "dataset": ds.key()})
@@ -320,12 +333,13 @@ def train_dataset(dataset: str | Path | BakedDataset, run_dir: str | Path | RunD
         # the L-BFGS two-loop recursion is many tiny vector ops: thread sync dominates (10x on 2 busy cores)
         torch.set_num_threads(cfg.threads)
     try:
-        if cfg.threads:
-            from threadpoolctl import threadpool_limits
+        with run.lock("train"):  # one writer per run directory (a second one fails at once, naming the holder)
+            if cfg.threads:
+                from threadpoolctl import threadpool_limits
 
-            with threadpool_limits(limits=cfg.threads):
-                return _train(ds, run, cfg, progress)
-        return _train(ds, run, cfg, progress)
+                with threadpool_limits(limits=cfg.threads):
+                    return _train(ds, run, cfg, progress)
+            return _train(ds, run, cfg, progress)
     finally:
         torch.set_num_threads(threads)
 
@@ -333,6 +347,8 @@ def train_dataset(dataset: str | Path | BakedDataset, run_dir: str | Path | RunD
 def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
     train = ds.split("train")
     check(train.n_frames >= 2 * cfg.folds, f"{ds.path}: only {train.n_frames} training frames for {cfg.folds} folds")
+    # the stage's files; model.json (written last, with their sha256) commits them (see unit_files)
+    run.begin("train", (*unit_files(run, cfg.kinds), run.model_json))
     skinning = load_skinning(ds) if cfg.input_selection == "joints" else None
     red = reduce_training(train, ds.cluster, cfg, skinning)
     _log(progress, f"input PCA: {ds.n_features} -> {red.inp.n_components} dims ({red.inp.retained:.3f} variance); "
@@ -357,8 +373,9 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     for name, sp in splits.items():
         metrics.setdefault("pca_floor", {})[name] = vis_rel_err(red.out.expand(red.out.reduce(sp.visibility)),
                                                                sp.visibility)
-    atomic_write_json(run.model_json, meta)
     atomic_write_json(run.metrics_json, metrics)
+    meta["files"] = run.unit_hashes(unit_files(run, list(fits)))
+    atomic_write_json(run.model_json, meta)  # the commit record: written last
     run.mark_done("train", train_key(ds, cfg))
     return metrics
 

@@ -210,11 +210,15 @@ def model_path(run_dir: str | Path | RunDir, kind: str | None = None) -> Path:
 
 def load_model(run_dir: str | Path | RunDir, kind: str | None = None) -> VisibilityModel:
     """The trained model of a run: ``kind=None`` gives the default (the MLP when trained). float32, eval
-    mode, no dataset needed."""
+    mode, no dataset needed. The run's ``model.json`` must record the file's sha256 (:meth:`RunDir.model_meta`
+    verifies the whole train unit): a model file of an interrupted ``prt train`` is refused with one line."""
     run = RunDir.of(run_dir).require()
     path = model_path(run, kind)
     if not path.is_file():
         raise PrtError(f"no trained {'default' if kind is None else kind} model in {run.path} ({path.name} missing)")
+    meta = run.model_meta()  # the train unit's commit record: every model file has its recorded sha256
+    if kind is not None and kind not in meta["kinds"]:
+        raise PrtError(f"{run.model_json}: this run's last training has no {kind} model (kinds {meta['kinds']})")
     return load_model_file(path)
 
 

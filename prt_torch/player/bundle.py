@@ -4,6 +4,12 @@
 :func:`prt_torch.export.export_run`), the character, the frame data (cluster labels / axes / bones for
 the vertex frames), the visibility, shading and fused ONNX graphs and the RPO catalogue. numpy +
 onnxruntime only.
+
+Integrity: the export metadata is the commit record of ``prt export``; every graph, the frame data and
+every RPO file must have the sha256 it records (:meth:`prt_torch.rundir.RunDir.export_meta`), and when the
+run still holds the model file it was exported from, that file must be the one exported (a re-trained run
+with a stale export is refused: run ``prt export``). A player bundle shipped without model files skips
+that last check.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError, check
-from prt_torch.rundir import RunDir
+from prt_torch.rundir import RunDir, file_sha256
 from prt_torch.runtime.session import OrtGraph
 
 
@@ -67,7 +73,8 @@ class RunBundle:
                  graphs: tuple[str, ...] = ("visibility", "shading", "fused"), spinning: bool = False) -> None:
         self.run = RunDir.of(run_dir)
         self.run_dir = self.run.path
-        self.meta: dict[str, Any] = self.run.export_meta()
+        self.meta: dict[str, Any] = self.run.export_meta()  # verified: every file has its recorded sha256
+        self._check_source_model()
         self.order = int(self.meta["sh_order"])
         self.n_vertices = int(self.meta["n_vertices"])
         self.n_features = int(self.meta["n_features"])
@@ -92,6 +99,15 @@ class RunBundle:
                                            f"{self.run.export_json.name} ({want!r})")
             self.graphs[name] = g
         self.rpo_files: dict[str, str] = dict(self.meta.get("rpo_files", {}))
+
+    def _check_source_model(self) -> None:
+        """The model the export was made from, where the run still has it, must be the exported one."""
+        rel = self.meta["model_file"]
+        src = self.run.inside(rel)
+        check(src is not None, f"{self.run.export_json}: bad key 'model_file': run `prt export {self.run_dir}` again")
+        if src.is_file() and file_sha256(src) != self.meta["model_sha256"]:
+            raise PrtError(f"{self.run.export_json} is stale: {rel} changed since it was exported (re-trained?): "
+                           f"run `prt export {self.run_dir}`")
 
     @property
     def brdf_names(self) -> list[str]:
