@@ -381,8 +381,16 @@ def run_bake(
 
     Holds the run directory's lock throughout: another bake of it is a one-line :class:`PrtError`.
     """
+    from prt_torch import limits
+
     require_embreex()
+    if workers is not None and workers < 1:
+        raise PrtError(f"workers must be >= 1, got {workers}")
     plan = make_plan(cfg)  # before the lock: a bad config creates nothing
+    b = cfg.bake
+    # the vertex count of a glTF character is known only now: one task's arrays must fit in memory
+    limits.check_bake_task_memory(min(b.frames_per_task, plan.n_frames), plan.character.num_vertices, b.order,
+                                  b.transfer_order if b.transfer else None)
     with RunDir(cfg.out_dir.resolve()).lock("bake"):
         return _run_bake(cfg, plan, workers, scheduler, progress, on_block)
 
