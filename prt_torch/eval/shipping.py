@@ -99,13 +99,17 @@ def shipping_lights(order: int, shared_data: Path | None = None, names: Sequence
 
 def shipping_rpos(order: int, run: RunDir | None = None, names: Sequence[str] = BRDFS,
                   n_terms: int = N_TERMS) -> dict[str, RPO]:
-    """The shipped RPOs by name: the run's exported ``rpo/<name>.npz`` when present (what the player loads),
-    else :func:`prt_torch.brdf.rpo.builtin_rpo` (what ``prt export`` writes) of ``order`` and ``n_terms``."""
+    """The shipped RPOs by name: the run's exported ``rpo/<name>.npz`` when the export lists it (verified
+    against the export's hashes, what the player loads), else :func:`prt_torch.brdf.rpo.builtin_rpo` (what
+    ``prt export`` writes) of ``order`` and ``n_terms``."""
     from prt_torch.brdf.rpo import RPO, builtin_rpo
 
+    exported: set[str] = set()
+    if run is not None and run.export_json.is_file():
+        exported = set(run.export_meta().get("rpo_files", {}))  # export_meta verifies every file's sha256
     out = {}
     for name in names:
-        path = run.rpo_path(name) if run is not None else None
+        path = run.rpo_path(name) if run is not None and name in exported else None
         rpo = RPO.load(path) if path is not None and path.is_file() else builtin_rpo(name, order=order, k=n_terms)
         check(rpo.order == order, f"RPO {name!r} has order {rpo.order}, the run {order}")
         out[name] = rpo
