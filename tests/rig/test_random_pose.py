@@ -222,6 +222,9 @@ LEAK_CASES = {
     "sparse-no-limits-no-bases": dict(random_mode="sparse", random_base_prob=1.0, train_clips=[], limits=False),
     "sparse-segment": dict(random_mode="sparse", random_base_prob=0.7, random_segment=3),
     "sparse-segment-no-limits": dict(random_mode="sparse", random_base_prob=0.7, random_segment=3, limits=False),
+    "cpca-limits": dict(random_mode="cpca"),
+    "cpca-no-limits": dict(random_mode="cpca", limits=False),
+    "cpca-few-clusters": dict(random_mode="cpca", random_cpca_clusters=2, random_cpca_components=3, limits=False),
 }
 
 
@@ -261,7 +264,8 @@ def test_no_heldout_frame_feeds_a_random_pose(case: str, split: bool, monkeypatc
     # no random pose derives from a held-out frame (interpolated frames towards one would be >= 1.0 off)
     d = _signature_distance(character, made[0].local)
     assert d.max() < 1e-9, f"{np.count_nonzero(d > 1e-9)} of 90 random poses derive from held-out frames"
-    if case in ("uniform-no-limits", "sparse-no-limits-bases") and split:  # sources used: the training range of walk
+    # sources used: the training range of walk
+    if case in ("uniform-no-limits", "sparse-no-limits-bases", "cpca-no-limits") and split:
         walk = character.clips["walk"].local[:6, 2:, :3, 3]
         assert np.any(np.all(np.isclose(made[0].local[:, None, 2:, :3, 3], walk[None]), axis=(-1, -2)))
 
