@@ -3,7 +3,8 @@
 Clip order in the dataset: ``train_clips``, then ``"random"`` (``random_poses`` random poses,
 training; ``random_mode`` picks the sampler of :mod:`prt_torch.rig.random_pose`), then
 ``heldout_clips``. Splits: ``train`` = train clips + random; ``heldout`` = held-out clips. Named
-clips are resampled at ``character.fps``.
+clips are resampled at ``character.fps``; ``character.motions`` (motion files retargeted by
+:mod:`prt_torch.rig.retarget`) become clips of the character first (:func:`add_motions`).
 
 Each ``train_clips``/``heldout_clips`` entry (a clip name, or a frame range of a clip,
 :class:`prt_torch.rig.config.ClipRange`) is one dataset clip with its own name; its ``frame_index``
@@ -12,7 +13,7 @@ and held-out sets; no frame may be used twice.
 
 :func:`make_plan` is the ONE place that builds the random poses' source clips from the split: the
 training entries' frames only (every mode: uniform without joint limits perturbs them, sparse uses
-them as base poses), never a held-out clip or the held-out range of a split clip.
+them as base poses, cpca clusters and resamples them), never a held-out clip or the held-out range of a split clip.
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ def load_character(cfg: RunConfig) -> Character:
     if ch.source == "builtin":
         from prt_torch.rig.builtin import make_character
 
-        return make_character(ch.density, fps=ch.fps)
+        return add_motions(cfg, make_character(ch.density, fps=ch.fps))
     path = cfg.resolve(ch.source)
     if path.suffix.lower() not in (".glb", ".gltf"):
         raise PrtError(f"unknown character source {ch.source!r}: expected 'builtin' or a .glb/.gltf file")
@@ -85,7 +86,32 @@ def load_character(cfg: RunConfig) -> Character:
         raise PrtError(f"character file not found: {path}")
     from prt_torch.rig.gltf import load_gltf
 
-    return load_gltf(path, fps=ch.fps, height=ch.height)
+    return add_motions(cfg, load_gltf(path, fps=ch.fps, height=ch.height))
+
+
+def add_motions(cfg: RunConfig, character: Character) -> Character:
+    """Retarget ``character.motions`` (files resolved against the config file) onto ``character`` as clips named
+    by each entry (``fps`` default ``character.fps``, then the ``frames`` slice). A missing or malformed file, a
+    non-humanoid skeleton, an empty slice or a name clash is a one-line :class:`PrtError` naming the entry."""
+    from prt_torch.rig.retarget import retarget_file
+
+    for i, m in enumerate(cfg.character.motions):
+        key = f"character.motions[{i}] ({m.name!r})"
+        if m.name in character.clips:
+            raise PrtError(f"{key}: the character already has a clip named {m.name!r}")
+        path = cfg.resolve(m.file)
+        if not path.is_file():
+            raise PrtError(f"{key}: motion file not found: {path}")
+        try:
+            clip, _ = retarget_file(path, character, fps=m.fps or cfg.character.fps, joint_map=m.joint_map,
+                                    name=m.name, skip_first=m.skip_first, clip=m.clip)
+        except PrtError as e:
+            raise PrtError(f"{key}: {e}") from None
+        local = clip.local[m.frame_slice()]
+        if local.shape[0] == 0:
+            raise PrtError(f"{key}: frames {m.frames!r} select no frame of {clip.num_frames}")
+        character.clips[m.name] = Clip(m.name, clip.fps, local)
+    return character
 
 
 @dataclass
@@ -144,8 +170,11 @@ def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
     sets are errors). The random poses' source clips are the training entries' frames, nothing else."""
     from prt_torch.rig.random_pose import random_poses
 
-    character = load_character(cfg) if character is None else character
     ch = cfg.character
+    if character is None:
+        character = load_character(cfg)
+    elif any(m.name not in character.clips for m in ch.motions):  # a character passed in (not from
+        character = add_motions(cfg, character)  # load_character) gets the config's motions as clips too
     train = resolve_clips(character, ch.train_clips, ch.fps, "train_clips")
     heldout = resolve_clips(character, ch.heldout_clips, ch.fps, "heldout_clips")
     _check_disjoint(train, heldout)
@@ -162,7 +191,8 @@ def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
         rnd = random_poses(character, ch.random_poses, seed=ch.seed, perturb_deg=ch.random_perturb_deg, fps=ch.fps,
                            mode=ch.random_mode, base_clips=sources, base_clip_prob=ch.random_base_prob,
                            max_chains=ch.random_max_chains, segment=ch.random_segment,
-                           near_base=ch.random_near_base)
+                           near_base=ch.random_near_base, cpca_clusters=ch.random_cpca_clusters,
+                           cpca_components=ch.random_cpca_components)
         poses.append(character.pose(rnd))
         frame_index.append(np.arange(rnd.num_frames))
     names += [c.name for c in heldout]

@@ -14,6 +14,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                         "sh_truth is always included)")
     parser.add_argument("--clip", default=None, help="a clip of the character to pose and trace (default: the "
                                                      "dataset's held-out frames)")
+    parser.add_argument("--motion", default=None, help="a motion file (.bvh, or a humanoid .glb/.gltf) retargeted "
+                                                       "onto the character, posed and traced instead of --clip")
+    parser.add_argument("--motion-fps", type=float, default=None, help="resample the motion to this rate")
     parser.add_argument("--frames", type=int, default=None, help="at most this many frames (evenly spaced)")
     parser.add_argument("--env", default=None, help="HDR environment map (default: the player's procedural sky)")
     parser.add_argument("--image-frames", type=int, default=8, help="frames rendered for image PSNR (default 8)")
@@ -44,6 +47,12 @@ def run(args: argparse.Namespace) -> int:
     limits.check_int(args.reference_rays, "--reference-rays", 1, limits.MAX_RAYS)
     if args.clip is not None and not args.clip.strip():
         raise PrtError("--clip: empty clip name")
+    if args.clip is not None and args.motion is not None:
+        raise PrtError("give --clip NAME or --motion FILE, not both")
+    if args.motion is not None:
+        V.input_file(args.motion, "--motion")
+    if args.motion_fps is not None:
+        limits.check_float(args.motion_fps, "--motion-fps", 0.0, limits.MAX_FPS, lo_open=True)
     if args.env is not None:
         V.input_file(args.env, "--env")
     V.input_dir(args.run, "run directory")
@@ -51,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_compare(args.run, methods=methods, clip=args.clip, max_frames=args.frames, env=args.env,
                          image_frames=args.image_frames, reference_frames=args.reference_frames,
                          reference_rays=args.reference_rays, threads=args.threads, log=console.log,
-                         progress=not args.json)
+                         progress=not args.json, motion=args.motion, motion_fps=args.motion_fps)
     if args.json:
         print(json.dumps(json.loads(json.dumps(result, default=float)), indent=2))
         return 0

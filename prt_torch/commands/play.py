@@ -1,4 +1,5 @@
-"""``prt play RUN --clip NAME --env FILE --brdf NAME [--out video.mp4]``: onnxruntime playback."""
+"""``prt play RUN --clip NAME | --motion FILE.bvh [--env FILE] [--brdf NAME] [--out video.mp4]``: onnxruntime
+playback (a motion file is retargeted onto the run's character by :mod:`prt_torch.rig.retarget`, torch-free)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,11 @@ HELP = "Play a clip of an exported run with onnxruntime: offscreen MP4/PNG frame
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", help="exported run directory (runs/NAME)")
-    parser.add_argument("--clip", required=True, help="clip name of the character (e.g. walk)")
+    parser.add_argument("--clip", default=None, help="clip name of the character (e.g. walk)")
+    parser.add_argument("--motion", default=None, help="a motion file (.bvh, or a humanoid .glb/.gltf) retargeted "
+                                                       "onto the run's character, instead of --clip")
+    parser.add_argument("--motion-fps", type=float, default=None,
+                        help="retarget the motion at this rate (default: the character's clips' rate)")
     parser.add_argument("--env", default=None, help="HDR environment map (.hdr/.exr/.pfm); default: procedural sky")
     parser.add_argument("--brdf", default=None, help="BRDF name from the run's RPO catalogue, or an RPO .npz")
     parser.add_argument("--out", default=None, help="write an MP4 here (offscreen)")
@@ -43,8 +48,14 @@ def run(args: argparse.Namespace) -> int:
     limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
     if not math.isfinite(args.light_angle):
         raise PrtError(f"--light-angle must be a finite number of degrees, got {args.light_angle}")
-    if not args.clip.strip():
+    if (args.clip is None) == (args.motion is None):
+        raise PrtError("give exactly one of --clip NAME or --motion FILE")
+    if args.clip is not None and not args.clip.strip():
         raise PrtError("--clip: empty clip name")
+    if args.motion is not None:
+        V.input_file(args.motion, "--motion")
+    if args.motion_fps is not None:
+        limits.check_float(args.motion_fps, "--motion-fps", 0.0, limits.MAX_FPS, lo_open=True)
     V.input_dir(args.run, "run directory")
     if args.env is not None:
         V.input_file(args.env, "--env")
@@ -75,8 +86,16 @@ def run(args: argparse.Namespace) -> int:
                     window_size=(h, w))
     if args.light_angle:
         player.rotate_light(np.radians(args.light_angle))
+    clip = args.clip
     try:
-        res = player.play(args.clip, out=args.out, png_dir=args.png, max_frames=args.max_frames, fps=args.fps,
+        if args.motion is not None:
+            from prt_torch.rig.retarget import retarget_file
+
+            motion, report = retarget_file(args.motion, player.character, fps=args.motion_fps)
+            clip = f"motion:{motion.name}"
+            player.character.clips[clip] = motion
+            console.print(report.summary())
+        res = player.play(clip, out=args.out, png_dir=args.png, max_frames=args.max_frames, fps=args.fps,
                           timings=timings, show=show)
     finally:
         player.close()

@@ -132,7 +132,8 @@ def _time_methods(methods: dict[str, MethodBase], fs: FrameSet, req: RadianceReq
 def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, clip: str | None = None,
                 max_frames: int | None = None, env: str | Path | None = None, dataset: str | Path | None = None,
                 image_frames: int = 8, reference_frames: int = 4, reference_rays: int = 512, threads: int = 2,
-                log: Callable[[str], None] | None = None, progress: bool = False) -> dict[str, Any]:
+                log: Callable[[str], None] | None = None, progress: bool = False, motion: str | Path | None = None,
+                motion_fps: float | None = None) -> dict[str, Any]:
     """Compare methods on a run (see :mod:`prt_torch.compare`); writes the compare directory; returns the JSON.
 
     Args:
@@ -147,6 +148,8 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         reference_rays: hemisphere rays per vertex of each of the two reference estimates.
         threads: onnxruntime threads of the learned methods.
         log: one-line progress notes; progress: rich progress bars.
+        motion: a motion file retargeted onto the character (:mod:`prt_torch.rig.retarget`) and compared as the
+            clip ``motion:<file stem>`` (``motion_fps``: its rate, default the dataset's).
     """
     from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.eval.evaluate import _Bar
@@ -155,6 +158,14 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
     check(max_frames is None or max_frames >= 1, f"--frames must be >= 1, got {max_frames}")
     note = log or (lambda s: None)
     ctx = load_compare_run(run_dir, dataset, threads)
+    if motion is not None:
+        from prt_torch.rig.retarget import retarget_file
+
+        fps = motion_fps or (ctx.dataset.attrs.get("config") or {}).get("character", {}).get("fps")
+        mclip, report = retarget_file(motion, ctx.character, fps=fps)
+        clip = f"motion:{mclip.name}"
+        ctx.character.clips[clip] = mclip
+        note(report.summary())
     names = resolve(methods, ctx)
     fs = clip_frames(ctx, clip, max_frames) if clip else heldout_frames(ctx, max_frames)
     lighting = load_lighting(env, ctx.order)

@@ -153,6 +153,49 @@ def _check_entries(entries: list[str | ClipRange], others: list[str | ClipRange]
                                  f"(frames of one clip must not be used twice)")
 
 
+class MotionConfig(BaseModel):
+    """A motion file retargeted onto the character (:mod:`prt_torch.rig.retarget`) as one of its clips.
+
+    ``{file: ../shared/data/motion/94_01.bvh, name: dance, fps: 30, frames: "1:1800", joint_map: {...}}``:
+    ``file`` a ``.bvh`` or humanoid ``.glb``/``.gltf`` (relative to the config file, like ``source``); ``name``
+    the clip name (usable in ``train_clips``/``heldout_clips``); ``fps`` the resampling rate (default
+    ``character.fps``); ``frames`` a python slice of the resampled frames (after the CMU MotionBuilder T-pose
+    frame is skipped: ``skip_first``, default per naming family); ``joint_map`` ``{source joint: target joint}``
+    overrides of the default map (``null`` unmaps a source joint); ``clip`` the glTF animation (default: the
+    first).
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    file: str = Field(min_length=1, max_length=L.MAX_STRING_LENGTH)
+    name: str = Field(min_length=1, max_length=L.MAX_STRING_LENGTH)
+    fps: float | None = Field(default=None, gt=0, le=L.MAX_FPS)
+    frames: str | None = Field(default=None, max_length=64)
+    joint_map: dict[str, str | None] = Field(default_factory=dict, max_length=L.MAX_LIST_LENGTH)
+    clip: str | None = Field(default=None, min_length=1, max_length=L.MAX_STRING_LENGTH)
+    skip_first: bool | None = None
+
+    @field_validator("file")
+    @classmethod
+    def _check_file(cls, v: str) -> str:
+        if "\x00" in v:
+            raise ValueError("a path must not contain a NUL character")
+        return v
+
+    @field_validator("frames")
+    @classmethod
+    def _check_frames(cls, v: str | None) -> str | None:
+        if v is not None:
+            start, stop = _parse_frames(v)
+            if start is not None and stop is not None and (start >= 0) == (stop >= 0) and stop <= start:
+                raise ValueError(f"empty frame range {v!r}")
+        return v
+
+    def frame_slice(self) -> slice:
+        """The selected frames of the retargeted (resampled) motion."""
+        return slice(*_parse_frames(self.frames)) if self.frames is not None else slice(None)
+
+
 class CharacterConfig(BaseModel):
     """Which character to load and which clips make the training and held-out sets.
 
@@ -169,6 +212,13 @@ class CharacterConfig(BaseModel):
     limits (every glTF/BVH character): each non-root joint of a training frame is rotated by up to
     this many degrees about a random axis (``random_mode: uniform``), or the joints of the moved
     chains are (``sparse``). Characters with joint limits (the built-in humanoid) ignore it.
+
+    ``random_mode: cpca`` resamples the training frames' pose space (seed 001 sec. 2): k-means of their
+    pose features into ``random_cpca_clusters`` clusters (1..64), a ``random_cpca_components``-component
+    PCA per cluster (1..54, at most the feature dimension ``6 x`` non-root joints), stratified samples
+    of each cluster's observed coefficient ranges (``random_poses`` spread evenly over the clusters),
+    projected back to rotations and clamped to the joint limits when there are any; root and joint
+    translations come from the cluster's nearest training frame. It needs ``train_clips``.
 
     Every number is finite and bounded (:mod:`prt_torch.limits`): ``density`` in
     ``[MIN_DENSITY, MAX_DENSITY]``, ``fps`` in ``(0, MAX_FPS]``, ``random_poses <= MAX_RANDOM_POSES``,
@@ -190,13 +240,26 @@ class CharacterConfig(BaseModel):
     # how they are sampled (prt_torch.rig.random_pose): "uniform" moves every joint; "sparse" moves
     # 1..random_max_chains joint chains of the bind pose or (probability random_base_prob) of a random
     # train_clips frame, key poses joined by random_segment interpolated frames (1 = independent poses)
-    random_mode: Literal["uniform", "sparse"] = "uniform"
+    random_mode: Literal["uniform", "sparse", "cpca"] = "uniform"
+    random_cpca_clusters: int = Field(default=8, ge=1, le=64)  # cpca: k-means clusters of the training poses
+    random_cpca_components: int = Field(default=8, ge=1, le=54)  # cpca: principal components per cluster
     random_max_chains: int = Field(default=3, ge=1, le=64)
     random_base_prob: float = Field(default=0.5, ge=0.0, le=1.0)
     random_segment: int = Field(default=1, ge=1, le=L.MAX_FRAMES)
     random_near_base: float = Field(default=0.0, ge=0.0, le=1.0)  # sparse: P(moved joint lands near its base)
     random_perturb_deg: float = Field(default=20.0, ge=0.0, le=180.0)  # no joint limits: perturbation range
     seed: int = Field(default=0, ge=0, le=L.MAX_SEED)
+    # motion files retargeted onto the character as clips (MotionConfig; prt_torch.rig.retarget)
+    motions: list[MotionConfig] = Field(default_factory=list, max_length=L.MAX_LIST_LENGTH)
+
+    @field_validator("motions")
+    @classmethod
+    def _check_motions(cls, v: list[MotionConfig]) -> list[MotionConfig]:
+        names = [m.name for m in v]
+        for i, n in enumerate(names):
+            if n in names[:i]:
+                raise ValueError(f"motions[{i}]: name {n!r} is used twice")
+        return v
 
     @field_validator("source")
     @classmethod

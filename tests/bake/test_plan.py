@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from prt_torch.bake.plan import RANDOM_CLIP, make_plan
+from prt_torch.bake.plan import RANDOM_CLIP, add_motions, make_plan
 from prt_torch.config import config_from_dict
 from prt_torch.errors import PrtError
 from prt_torch.rig.builtin import make_character
@@ -141,3 +141,49 @@ def test_bad_clip_entries_against_the_character(small: Character) -> None:
     with pytest.raises(PrtError, match="clashes with the random poses"):
         plan(train_clips=[{"clip": "walk", "name": RANDOM_CLIP}], random_poses=2)
     plan(train_clips=[{"clip": "walk", "frames": ":7"}], heldout_clips=[{"clip": "walk", "frames": "-4:"}])  # fine
+
+
+# -- character.motions: motion files retargeted onto the character (prt_torch.rig.retarget) ---------------
+def test_motions_become_clips_and_change_the_fingerprint(small: Character, shared_data, tmp_path) -> None:  # noqa: ANN001
+    import shutil
+
+    from prt_torch.rig.retarget import retarget_file
+
+    bvh = tmp_path / "walk.bvh"
+    shutil.copy(shared_data / "motion" / "131_01.bvh", bvh)
+    raw = _cfg(motions=[{"file": "walk.bvh", "name": "mocap", "frames": "2:30"}],
+               train_clips=["stretch", {"clip": "mocap", "frames": "0:20"}],
+               heldout_clips=[{"clip": "mocap", "frames": "20:", "name": "mocap_end"}])
+    cfg = config_from_dict(raw, base_dir=tmp_path)  # `file` resolved against the config's directory
+    plan = make_plan(cfg, character=replace(small, clips=dict(small.clips)))
+    assert plan.clip_names == ["stretch", "mocap[0:20]", "mocap_end"]
+    want, _ = retarget_file(bvh, small, fps=FPS)
+    tr = _rows(plan, "mocap[0:20]")
+    np.testing.assert_array_equal(plan.frame_index[tr], np.arange(20))
+    np.testing.assert_allclose(plan.skin[tr], (small.pose(Clip("m", FPS, want.local[2:22]))).skin, atol=1e-9)
+    assert len(_rows(plan, "mocap_end")) == 8
+    text = bvh.read_text().splitlines()
+    first = next(i for i, line in enumerate(text) if line.startswith("Frame Time")) + 1
+    for i in range(first + 200, first + 260):  # motion values change (source frames 200-259: in the slice)
+        text[i] = " ".join(f"{float(v) + 3.0:.4f}" for v in text[i].split())
+    bvh.write_text("\n".join(text) + "\n")
+    plan2 = make_plan(config_from_dict(raw, base_dir=tmp_path), character=replace(small, clips=dict(small.clips)))
+    assert plan2.fingerprint() != plan.fingerprint()
+
+
+def test_bad_motions_are_one_line_errors(small: Character, shared_data, tmp_path) -> None:  # noqa: ANN001
+    cases = [({"file": "missing.bvh", "name": "m"}, "motion file not found"),
+             ({"file": str(shared_data / "characters" / "Fox.glb"), "name": "m"}, "humanoid"),
+             ({"file": str(shared_data / "motion" / "131_01.bvh"), "name": "walk"}, "already has a clip"),
+             ({"file": str(shared_data / "motion" / "131_01.bvh"), "name": "m", "joint_map": {"Nope": "head"}},
+              "Nope"),
+             ({"file": str(shared_data / "motion" / "131_01.bvh"), "name": "m", "frames": "5000:"}, "no frame")]
+    for motion, msg in cases:
+        cfg = config_from_dict(_cfg(motions=[motion]), base_dir=tmp_path)
+        with pytest.raises(PrtError, match=msg) as e:
+            add_motions(cfg, replace(small, clips=dict(small.clips)))
+        assert "\n" not in str(e.value) and "character.motions[0]" in str(e.value)
+    with pytest.raises(PrtError, match="used twice"):
+        config_from_dict(_cfg(motions=[{"file": "a.bvh", "name": "m"}, {"file": "b.bvh", "name": "m"}]))
+    with pytest.raises(PrtError, match="motions"):
+        config_from_dict(_cfg(motions=[{"file": "a.bvh", "name": "m", "speed": 2}]))
