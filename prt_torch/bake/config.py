@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from prt_torch import limits as L
@@ -10,8 +12,8 @@ from prt_torch import limits as L
 class BakeConfig(BaseModel):
     """How to ray-trace the ground truth.
 
-    Every field that changes the baked numbers (``order``, ``n_rays``, ``transfer*``, ``bounces``,
-    ``albedo``, ``seed``, ``ray_offset``, the clustering fields) is recorded in the dataset and
+    Every field that changes the baked numbers (``order``, ``n_rays``, ``below_horizon``, ``transfer*``,
+    ``bounces``, ``albedo``, ``seed``, ``ray_offset``, the clustering fields) is recorded in the dataset and
     checked on resume; ``frames_per_task``, ``workers``, ``scheduler`` and ``vertex_chunk`` only
     change how the work is split, never the result.
 
@@ -24,6 +26,9 @@ class BakeConfig(BaseModel):
 
     order: int = Field(default=4, ge=1, le=6)  # SH order of local-frame visibility
     n_rays: int = Field(default=512, ge=16, le=L.MAX_RAYS)  # hemisphere rays per vertex
+    #: visibility below the horizon (no ray is shot there): "zero" (docs/DESIGN.md) or "one" (seed 003 eq. 1, an
+    #: unoccluded vertex is the constant 1); recorded in the dataset, which every reader follows
+    below_horizon: Literal["zero", "one"] = "zero"
     transfer: bool = False  # also bake global-frame cosine-weighted diffuse transfer
     transfer_order: int = Field(default=6, ge=1, le=8)
     bounces: int = Field(default=0, ge=0, le=3)  # diffuse interreflection bounces (transfer only)

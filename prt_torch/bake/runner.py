@@ -35,12 +35,13 @@ import numpy as np
 from prt_torch.bake.embree import ray_offset, require_embreex
 from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
-    CONVENTIONS,
     FORMAT_VERSION,
     PER_FRAME_RESULTS,
     BakedDataset,
     StoreReport,
+    below_horizon_of,
     check_compatible,
+    conventions,
     create_store,
     library_versions,
     open_for_writing,
@@ -131,7 +132,7 @@ def _context(dataset: str) -> _Context:
         ctx = _Context(group=g, arrays=arrays, character=ch, dense_w=ch.dense_weights, labels=labels,
                        axes=np.asarray(g["cluster_axis"][:]), bones=np.asarray(g["cluster_bone"][:]),
                        rays=RaySet.make(int(params["n_rays"]), int(params["order"]), ch.num_vertices,
-                                        int(params["seed"])),
+                                        int(params["seed"]), below_horizon=below_horizon_of(params)),
                        params=params)
         _CONTEXTS.clear()
         _CONTEXTS[key] = ctx
@@ -207,9 +208,9 @@ def _worker_init(parent: int) -> None:
 
 def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any]:
     b = cfg.bake
-    bake_params = {k: getattr(b, k) for k in ("order", "n_rays", "transfer", "transfer_order", "bounces", "albedo",
-                                              "seed", "ray_offset", "cluster_bandwidth", "max_clusters",
-                                              "min_cluster_size", "vertex_chunk_rays")}
+    bake_params = {k: getattr(b, k) for k in ("order", "n_rays", "below_horizon", "transfer", "transfer_order",
+                                              "bounces", "albedo", "seed", "ray_offset", "cluster_bandwidth",
+                                              "max_clusters", "min_cluster_size", "vertex_chunk_rays")}
     bake_params["ray_offset_world"] = offset_world
     return {
         "format_version": FORMAT_VERSION,
@@ -222,7 +223,7 @@ def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any
         "transfer_order": b.transfer_order if b.transfer else None,
         "bake": bake_params,
         "frames_fingerprint": plan.fingerprint(),
-        "conventions": CONVENTIONS,
+        "conventions": conventions(b.below_horizon),
         "versions": library_versions(),
         "config": cfg.model_dump(mode="json"),
     }

@@ -62,17 +62,46 @@ READABLE_FORMATS = (1, 2)
 PER_FRAME_RESULTS = ("positions", "normals", "frames", "visibility", "transfer")
 
 #: attrs["bake"] keys that change the baked numbers (compared on resume)
-RESULT_KEYS = ("order", "n_rays", "transfer", "transfer_order", "bounces", "albedo", "seed", "ray_offset",
-               "cluster_bandwidth", "max_clusters", "min_cluster_size")
+RESULT_KEYS = ("order", "n_rays", "below_horizon", "transfer", "transfer_order", "bounces", "albedo", "seed",
+               "ray_offset", "cluster_bandwidth", "max_clusters", "min_cluster_size")
+#: the value of a result key added after stores were written, for a store that does not record it
+RESULT_KEY_DEFAULTS = {"below_horizon": "zero"}
+
+#: the visibility convention text of each ``bake.below_horizon``
+VISIBILITY_CONVENTIONS = {
+    "zero": "SH over the whole sphere of V(s) = 0 if the ray hits the mesh or s.n < 0, else 1; local frame",
+    "one": "SH over the whole sphere of V(s) = 0 if the ray hits the mesh and s.n >= 0, else 1 (1 below the "
+           "horizon, seed 003 eq. 1: an unoccluded vertex is the constant sqrt(4 pi) e_0); local frame",
+}
 
 CONVENTIONS = {
     "world": "right-handed, z up",
     "sh": "real orthonormal SH, index l*(l+1)+m, no Condon-Shortley phase (Ramamoorthi-Hanrahan 2001)",
     "frames": "rows (t, b, n) in world coordinates; local coordinates of world w are F @ w; local +z = normal",
-    "visibility": "SH over the whole sphere of V(s) = 0 if the ray hits the mesh or s.n < 0, else 1; local frame",
+    "visibility": VISIBILITY_CONVENTIONS["zero"],
+    "below_horizon": "zero",
     "transfer": "world frame, int V(w) max(n.w, 0)/pi y(w) dw plus interreflection bounces; shade albedo * (L . t)",
     "rays": "shared spherical-Fibonacci hemisphere set rotated per vertex about n by a fixed seeded angle",
 }
+
+
+def conventions(below_horizon: str = "zero") -> dict[str, str]:
+    """The ``conventions`` attribute of a store baked with ``bake.below_horizon = below_horizon``."""
+    if below_horizon not in VISIBILITY_CONVENTIONS:
+        raise PrtError(f"below_horizon must be one of {sorted(VISIBILITY_CONVENTIONS)}, got {below_horizon!r}")
+    return {**CONVENTIONS, "visibility": VISIBILITY_CONVENTIONS[below_horizon], "below_horizon": below_horizon}
+
+
+def below_horizon_of(attrs: dict[str, Any] | None) -> str:
+    """The ``bake.below_horizon`` convention of a store's (or a compare run's bake) attributes: ``"zero"`` for
+    stores written before it was recorded; a one-line :class:`PrtError` for an unknown value."""
+    attrs = attrs or {}
+    bake = attrs.get("bake", attrs)  # the store attributes, or their "bake" dict itself
+    value = (bake or {}).get("below_horizon", RESULT_KEY_DEFAULTS["below_horizon"])
+    if value not in VISIBILITY_CONVENTIONS:
+        raise PrtError(f"dataset records bake.below_horizon={value!r}, expected one of "
+                       f"{sorted(VISIBILITY_CONVENTIONS)}")
+    return str(value)
 
 #: arrays with one entry per frame that are written at creation (the rest of the frame arrays are
 #: ``PER_FRAME_RESULTS`` and ``done``, written by the bake tasks)
@@ -203,9 +232,9 @@ def check_compatible(path: Path, attrs: dict[str, Any], existing: dict[str, Any]
                        f"!= {attrs['character_hash'][:12]}); nothing written")
     old_bake, new_bake = existing.get("bake", {}), attrs["bake"]
     for key in RESULT_KEYS:
-        if old_bake.get(key) != new_bake.get(key):
-            raise PrtError(f"{path} was baked with bake.{key}={old_bake.get(key)!r}, the config has "
-                           f"{new_bake.get(key)!r}; nothing written")
+        old, new = (b.get(key, RESULT_KEY_DEFAULTS.get(key)) for b in (old_bake, new_bake))
+        if old != new:
+            raise PrtError(f"{path} was baked with bake.{key}={old!r}, the config has {new!r}; nothing written")
     if existing.get("frames_fingerprint") != attrs["frames_fingerprint"]:
         raise PrtError(f"{path} holds a different frame list (clips, fps, random poses); nothing written")
 

@@ -17,6 +17,16 @@ from prt_torch.bake.transfer import bounce_operator, direct_transfer, gather_ent
 from prt_torch.bake.visibility import project_visibility, projection_table
 from prt_torch.errors import PrtError
 
+#: what the visibility is below the horizon (``bake.below_horizon``): 0 (docs/DESIGN.md) or 1 (seed 003 eq. 1)
+BELOW_HORIZON = ("zero", "one")
+
+
+def check_below_horizon(value: object) -> str:
+    """``value`` if it is a :data:`BELOW_HORIZON` convention, else a one-line :class:`PrtError`."""
+    if value not in BELOW_HORIZON:
+        raise PrtError(f"below_horizon must be one of {list(BELOW_HORIZON)}, got {value!r}")
+    return str(value)
+
 
 @dataclass(frozen=True)
 class RaySet:
@@ -28,6 +38,7 @@ class RaySet:
         table: ``(C, R)`` float32 projection table ``y(d_r) 2 pi / R``.
         phi: ``(V,)`` float64 fixed per-vertex rotation angles about the normal.
         order: SH order of the visibility.
+        below_horizon: the visibility below the horizon, ``"zero"`` or ``"one"`` (:data:`BELOW_HORIZON`).
     """
 
     local: np.ndarray
@@ -35,13 +46,16 @@ class RaySet:
     table: np.ndarray
     phi: np.ndarray
     order: int
+    below_horizon: str = "zero"
 
     @classmethod
-    def make(cls, n_rays: int, order: int, n_vertices: int, seed: int) -> RaySet:
+    def make(cls, n_rays: int, order: int, n_vertices: int, seed: int, below_horizon: str = "zero") -> RaySet:
+        """The ray set of a bake: ``n_rays`` hemisphere directions, order-``order`` table, seeded angles."""
+        below_horizon = check_below_horizon(below_horizon)
         local64 = hemisphere_set(n_rays)
         local = local64.astype(np.float32)
         return cls(local=local, cos=np.ascontiguousarray(local[:, 2]), table=projection_table(local64, order),
-                   phi=vertex_angles(n_vertices, seed), order=order)
+                   phi=vertex_angles(n_vertices, seed), order=order, below_horizon=below_horizon)
 
     @property
     def n_rays(self) -> int:
@@ -75,7 +89,8 @@ def trace_frame(
         positions: ``(V, 3)`` posed vertex positions, world.
         frames: ``(V, 3, 3)`` vertex frames, rows ``(t, b, n)`` (``n`` the smooth normal).
         faces: ``(T, 3)`` triangles.
-        rays: the frame-invariant :class:`RaySet` (its ``phi`` has ``V`` entries).
+        rays: the frame-invariant :class:`RaySet` (its ``phi`` has ``V`` entries; its ``below_horizon``
+            sets the visibility below the horizon, see the module docstring).
         offset: ray origins are ``positions + offset * n`` (world units).
         transfer_order: also compute cosine-weighted world-frame transfer of this order.
         bounces: interreflection bounces added to the transfer (needs ``transfer_order``).
@@ -108,6 +123,10 @@ def trace_frame(
     f32 = frames.astype(np.float32, copy=False)
     origins_all = (positions + offset * frames[:, 2]).astype(np.float32)
     vis = np.empty((V, rays.table.shape[0]), dtype=np.float32)
+    one = check_below_horizon(rays.below_horizon) == "one"
+    if one:
+        constant = np.zeros(rays.table.shape[0], dtype=np.float32)
+        constant[0] = np.float32(np.sqrt(4.0 * np.pi))  # SH of V = 1 on the whole sphere
     tr = np.empty((V, transfer_order * transfer_order), dtype=np.float32) if transfer_order else None
     entries = []
     vb = max(1, max_rays // R)
@@ -123,7 +142,11 @@ def trace_frame(
         else:
             occluded = scene.occluded(origins.reshape(-1, 3), dirs.reshape(-1, 3))
         visible = np.logical_not(occluded).reshape(R, n).astype(np.float32)
-        vis[v0:v1] = project_visibility(visible, rays.table, rays.phi[v0:v1])
+        if one:  # 1 - occluded: the lower hemisphere in closed form, only the occluded rays projected
+            vis[v0:v1] = constant - project_visibility(occluded.reshape(R, n).astype(np.float32), rays.table,
+                                                       rays.phi[v0:v1])
+        else:
+            vis[v0:v1] = project_visibility(visible, rays.table, rays.phi[v0:v1])
         if tr is not None:
             tr[v0:v1] = direct_transfer(visible, rays.cos, dirs, transfer_order)
         if bounces:

@@ -185,7 +185,7 @@ def evaluate_run(run_dir: str | Path | RunDir, dataset: str | Path | None = None
             ev.splits[split] = sp
             ev.results["frames"][split] = sp.n_frames
             preds = {k: m.predict(sp.pose).numpy() for k, m in models.items()}
-            preds[UNSHADOWED] = np.broadcast_to(unshadowed_visibility(order), sp.visibility.shape)
+            preds[UNSHADOWED] = np.broadcast_to(unshadowed_visibility(order, ds.attrs), sp.visibility.shape)
             ev.predictions[split] = preds
             res = {k: {"frames": sp.n_frames, **visibility_metrics(p, sp.visibility, sp.clip_id)}
                    for k, p in preds.items()}

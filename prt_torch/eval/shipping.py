@@ -116,11 +116,18 @@ def shipping_rpos(order: int, run: RunDir | None = None, names: Sequence[str] = 
     return out
 
 
-def unshadowed_visibility(order: int) -> np.ndarray:
-    """``(C,)`` float32: the player's unshadowed visibility (SH of the upper-hemisphere indicator)."""
+def unshadowed_visibility(order: int, below_horizon: str | Mapping[str, Any] | None = "zero") -> np.ndarray:
+    """``(C,)`` float32: the player's unshadowed visibility in the dataset's convention: the SH of the
+    upper-hemisphere indicator (``"zero"``) or the constant 1 (``"one"``).
+
+    ``below_horizon``: the convention, or a dataset's attributes / ``attrs["bake"]`` dict (missing: ``"zero"``).
+    """
+    from prt_torch.bake.store import below_horizon_of
     from prt_torch.player.lighting import hemisphere_visibility
 
-    return hemisphere_visibility(order)
+    if below_horizon is None or isinstance(below_horizon, Mapping):
+        below_horizon = below_horizon_of(dict(below_horizon or {}))
+    return hemisphere_visibility(order, below_horizon)
 
 
 def orthonormal_frames(frames: np.ndarray) -> np.ndarray:

@@ -48,6 +48,13 @@ CONVENTIONS = ("z-up world; real SH orthonormal, index l*(l+1)+m, no Condon-Shor
                "y_lm(s); RPO shading L = tint * sum_b (w_b . y(wo)) (l . M_b v) (seed 003 eq. 11)")
 
 
+def export_conventions(below_horizon: str) -> str:
+    """The conventions text of an export whose dataset was baked with ``bake.below_horizon = below_horizon``."""
+    if below_horizon == "zero":
+        return CONVENTIONS
+    return CONVENTIONS.replace("zero below the horizon", "one below the horizon (seed 003 eq. 1)")
+
+
 def heldout_inputs(run: RunDir, n_max: int = 8) -> dict[str, np.ndarray]:
     """Held-out poses, frames and positions of the run's dataset (``n_max`` evenly spaced done held-out
     frames; the last done frames when it has no held-out split)."""
@@ -163,6 +170,10 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     held = heldout_inputs(run)
     write_frame_data(run)
     check(held["frames"].shape[1] == V, f"dataset has {held['frames'].shape[1]} vertices, the model {V}")
+    from prt_torch.bake.store import below_horizon_of
+
+    below_horizon = below_horizon_of(run.dataset().attrs)  # the player's unshadowed visibility follows it
+    conventions = export_conventions(below_horizon)
     rpos = build_rpos(brdfs, order, n_terms)
     rpo_files = {}
     for name, rpo in rpos.items():
@@ -170,12 +181,13 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         rpo_files[name] = run.relative(run.rpo_path(name))
 
     base_meta = {
-        "prt.format": FORMAT, "prt.conventions": CONVENTIONS, "prt.sh_order": order, "prt.n_coeffs": C,
+        "prt.format": FORMAT, "prt.conventions": conventions, "prt.sh_order": order, "prt.n_coeffs": C,
         "prt.n_vertices": V, "prt.n_features": A, "prt.n_terms": n_terms, "prt.model_kind": model.kind,
         "prt.character_hash": character.content_hash(), "prt.character_name": character.name,
         "prt.model_sha256": model_hash,
         "prt.frames": "frames input (B, 9, V): entry 3i+j = F[i, j], rows (t, b, n), world; local = F @ w",
         "prt.view_dirs": "(B, 3, V) unit world directions vertex -> eye",
+        "prt.below_horizon": below_horizon,
     }
     batch = {0: "B"}
     vis_graph = VisibilityGraph(model).eval()
@@ -214,8 +226,9 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         if console is not None:
             console.print(f"  {path.name}: parity rel. error {p.rel_error:.2e} on {len(pose)} held-out poses")
     meta = {
-        "format": FORMAT, "conventions": CONVENTIONS, "sh_order": order, "n_coeffs": C, "n_vertices": V,
-        "n_features": A, "n_terms": n_terms, "model_kind": model.kind, "model_sha256": model_hash, "opset": opset,
+        "format": FORMAT, "conventions": conventions, "below_horizon": below_horizon, "sh_order": order,
+        "n_coeffs": C, "n_vertices": V, "n_features": A, "n_terms": n_terms, "model_kind": model.kind,
+        "model_sha256": model_hash, "opset": opset,
         "exporter": exporter, "character_hash": character.content_hash(), "character_name": character.name,
         "character_file": run.relative(run.character_path), "frames_file": run.relative(run.frames_path),
         "files": {g: run.relative(run.graph_path(g)) for g in GRAPHS},

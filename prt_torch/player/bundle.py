@@ -79,6 +79,12 @@ class RunBundle:
         self.n_vertices = int(self.meta["n_vertices"])
         self.n_features = int(self.meta["n_features"])
         self.n_terms = int(self.meta["n_terms"])
+        from prt_torch.player.lighting import BELOW_HORIZON
+
+        #: the visibility convention below the horizon of the exported dataset ("zero" for older exports)
+        self.below_horizon = str(self.meta.get("below_horizon", "zero"))
+        check(self.below_horizon in BELOW_HORIZON, f"{self.run.export_json}: below_horizon={self.below_horizon!r}, "
+                                                   f"expected one of {list(BELOW_HORIZON)}")
         self.character = self.run.character(expect_hash=self.meta["character_hash"])
         check(self.character.num_vertices == self.n_vertices,
               f"character has {self.character.num_vertices} vertices, the model {self.n_vertices}")

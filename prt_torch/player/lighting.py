@@ -86,10 +86,24 @@ def load_lighting(env: str | os.PathLike[str] | None, order: int, n_lobes: int =
     return lighting_from_sh(envmap_to_sh(load_envmap(path), order), n_lobes, source=str(path), window=window)
 
 
-def hemisphere_visibility(order: int) -> np.ndarray:
-    """``(C,)`` float32 SH of the upper-hemisphere indicator in the local frame (the unshadowed
-    visibility of docs/DESIGN.md): only ``m = 0`` terms, ``v_l0 = 2 pi int_0^1 y_l0(z) dz``."""
+#: the visibility conventions below the horizon (``bake.below_horizon``; export.json ``below_horizon``)
+BELOW_HORIZON = ("zero", "one")
+
+
+def hemisphere_visibility(order: int, below_horizon: str = "zero") -> np.ndarray:
+    """``(C,)`` float32 unshadowed (unoccluded) visibility in the local frame, in the dataset's convention.
+
+    ``below_horizon="zero"`` (docs/DESIGN.md): the SH of the upper-hemisphere indicator, only ``m = 0``
+    terms, ``v_l0 = 2 pi int_0^1 y_l0(z) dz``. ``"one"`` (seed 003 eq. 1): the constant 1, ``sqrt(4 pi) e_0``.
+    """
     from prt_torch.sh.basis import sh_basis
+
+    if below_horizon not in BELOW_HORIZON:
+        raise PrtError(f"below_horizon must be one of {list(BELOW_HORIZON)}, got {below_horizon!r}")
+    if below_horizon == "one":
+        out1 = np.zeros(order * order, dtype=np.float32)
+        out1[0] = np.sqrt(4 * np.pi)
+        return out1
 
     z, wz = np.polynomial.legendre.leggauss(max(order, 2))
     z = 0.5 * (z + 1.0)

@@ -118,7 +118,7 @@ class Player:
         self._lobe_dirs = self.lighting.dirs
         self.rpo: RPOTensors = self.bundle.rpo(brdf if brdf is not None else self.bundle.brdf_names[0])
         self.exposure = exposure
-        self.unshadowed = hemisphere_visibility(self.order)
+        self.unshadowed = hemisphere_visibility(self.order, self.bundle.below_horizon)
         ch = self.character
         self.poser = Poser(ch, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone)
         self.center, self.radius = camera_target(ch.rest_vertices)

@@ -25,7 +25,10 @@ class ShTruth(MethodBase):
 
         require_embreex()
         b = run.bake
-        self.rays = RaySet.make(int(b["n_rays"]), int(b["order"]), run.n_vertices, int(b["seed"]))
+        from prt_torch.bake.store import below_horizon_of
+
+        self.rays = RaySet.make(int(b["n_rays"]), int(b["order"]), run.n_vertices, int(b["seed"]),
+                                below_horizon=below_horizon_of(b))
         self.offset = float(b["ray_offset_world"])
         self.max_rays = int(b.get("vertex_chunk_rays", 1 << 20))
         self.faces = np.asarray(run.character.faces)

@@ -1,4 +1,4 @@
-"""``unshadowed``: the player's unoccluded hemisphere visibility, a constant (no self-shadowing)."""
+"""``unshadowed``: the player's unoccluded visibility in the dataset's convention, a constant (no self-shadowing)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBa
 
 @register
 class Unshadowed(MethodBase):
-    """The SH of the upper-hemisphere indicator in every vertex frame (``player.lighting.hemisphere_visibility``)."""
+    """The unoccluded visibility in every vertex frame (``player.lighting.hemisphere_visibility``) in the dataset's
+    ``bake.below_horizon`` convention: the upper-hemisphere indicator (``"zero"``) or the constant 1 (``"one"``)."""
 
     name = "unshadowed"
     output = "visibility"
@@ -18,7 +19,7 @@ class Unshadowed(MethodBase):
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
         from prt_torch.eval.shipping import unshadowed_visibility
 
-        self.h = unshadowed_visibility(run.order)
+        self.h = unshadowed_visibility(run.order, run.bake)
         self.n_vertices = run.n_vertices
 
     def visibility(self, batch: FrameBatch) -> np.ndarray:
