@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+KINDS = ("linear", "quadratic", "mlp")
 HELP = "Fit times of linear, quadratic and MLP models on the built-in training set, and MLP/linear."
 
 
@@ -38,6 +42,17 @@ def _small_bake(tmp: Path) -> Path:
     return Path(bake(cfg, workers=1, progress=False))
 
 
+def _measured(fn: Callable[[], Any]) -> tuple[Any, dict[str, float]]:
+    """Run ``fn``; its result and ``wall_s``, ``user_s``, ``sys_s``, ``page_faults`` (minor + major) of this process."""
+    r0 = resource.getrusage(resource.RUSAGE_SELF)
+    t0 = time.perf_counter()
+    out = fn()
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    return out, {"wall_s": wall, "user_s": r1.ru_utime - r0.ru_utime, "sys_s": r1.ru_stime - r0.ru_stime,
+                 "page_faults": (r1.ru_minflt - r0.ru_minflt) + (r1.ru_majflt - r0.ru_majflt)}
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
     from rich.console import Console
@@ -48,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.commands import _validate as V
     from prt_torch.config import load_config
     from prt_torch.fit.config import TrainConfig
+    from prt_torch.fit.inputs import load_skinning
     from prt_torch.fit.train import fit_mlp_kind, fit_ridge_kind, reduce_training
 
     if args.max_iter is not None:
@@ -70,23 +86,25 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(max(cfg.threads, 1))
         try:
             with threadpool_limits(limits=max(cfg.threads, 1)):
-                t0 = time.perf_counter()
-                red = reduce_training(train, info.cluster, cfg)
-                reduce_s = time.perf_counter() - t0
-                times = {}
+                # the same reduction as prt train (per-cluster joint inputs when the config selects them)
+                skinning = load_skinning(info) if cfg.input_selection == "joints" else None
+                red, m = _measured(lambda: reduce_training(train, info.cluster, cfg, skinning))
+                reduce_s = m["wall_s"]
+                usage = {"reduce": m}
                 for kind in ("linear", "quadratic"):
-                    t0 = time.perf_counter()
-                    fit_ridge_kind(kind, red, cfg.alphas)
-                    times[kind] = time.perf_counter() - t0
-                t0 = time.perf_counter()
-                mlp = fit_mlp_kind(red, cfg)
-                times["mlp"] = time.perf_counter() - t0
+                    _, usage[kind] = _measured(lambda kind=kind: fit_ridge_kind(kind, red, cfg.alphas))
+                mlp, usage["mlp"] = _measured(lambda: fit_mlp_kind(red, cfg))
+                times = {k: u["wall_s"] for k, u in usage.items()}
+                total = {f: sum(u[f] for u in usage.values()) for f in ("user_s", "sys_s", "page_faults")}
         finally:
             torch.set_num_threads(threads)
     out = {"linear_s": times["linear"], "quadratic_s": times["quadratic"], "mlp_s": times["mlp"],
            "mlp_over_linear": times["mlp"] / max(times["linear"], 1e-9),
            "quadratic_over_linear": times["quadratic"] / max(times["linear"], 1e-9),
            "reduce_s": reduce_s, "frames": int(red.x.shape[0]), "reduced_inputs": int(red.x.shape[1]),
+           "mlp_inputs": int(red.inputs("mlp")[0].shape[1]), "input_selection": cfg.input_selection,
+           **total,  # reduction + the three fits; per kind below
+           **{f"{k}_{f}": usage[k][f] for k in KINDS for f in ("user_s", "sys_s", "page_faults")},
            "clusters": int(red.z.shape[1]), "output_width": int(red.z.shape[2]),
            "mlp_iterations": mlp.choice.get("iterations"), "cv_grid": {"alphas": len(cfg.alphas),
                                                                        "mlp_alphas": len(cfg.mlp_alphas),
@@ -98,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"fit on {out['frames']} frames, {out['reduced_inputs']} inputs, {out['clusters']} clusters "
                       f"(reduction {reduce_s:.2f} s)")
         for k in ("linear", "quadratic", "mlp"):
-            console.print(f"  {k:10s} {times[k]:9.3f} s   x{times[k] / max(times['linear'], 1e-9):8.1f} linear")
+            u = usage[k]
+            console.print(f"  {k:10s} {times[k]:9.3f} s   x{times[k] / max(times['linear'], 1e-9):8.1f} linear   "
+                          f"(user {u['user_s']:.2f} s, sys {u['sys_s']:.2f} s, {u['page_faults']} page faults)")
         console.print(f"MLP / linear = {out['mlp_over_linear']:.1f} (seed 003 Table 1: 73x)")
     return 0
