@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     seconds["bake"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    if not args.force and run.is_current("train", train_key(ds, cfg.train), (run.model_path(), run.model_json)):
+    if not args.force and _trained(run, train_key(ds, cfg.train)):
         console.print("[bold]2/5 fit[/]: up to date, reusing the trained models")
     else:
         console.print("[bold]2/5 fit[/] (PCA + ridge / per-cluster MLP, L-BFGS)")
@@ -138,6 +138,20 @@ def run(args: argparse.Namespace) -> int:
                   f"{res.summary.get('total_fps', 0):.1f} frames/s with rendering + encoding")
     console.print(f"wrote {run.demo_video}, {run.demo_image}, {run.demo_metrics} in {seconds['total']:.0f} s")
     return 0
+
+
+def _trained(run: Any, key: str) -> bool:
+    """Whether the run's models are up to date for ``key`` AND verify against their commit record (a run
+    trained by an older version, or damaged since, is trained again instead of failing later)."""
+    from prt_torch.errors import PrtError
+
+    if not run.is_current("train", key, (run.model_path(), run.model_json)):
+        return False
+    try:
+        run.model_meta()
+    except PrtError:
+        return False
+    return True
 
 
 def compare_heldout(player: Any, ds: Any, clip: str, out: Path) -> dict[str, Any]:
