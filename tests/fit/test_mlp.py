@@ -52,3 +52,19 @@ def test_batch_is_separable() -> None:
                       + alpha[0, g] * (alone.C.pow(2).sum() + alone.D.pow(2).sum()))
         j_obj = objective(joint, g)
         assert abs(j_obj - x_obj) <= 0.05 * max(x_obj, 1e-6) + 1e-6, (g, j_obj, x_obj)
+
+
+def test_masks_survive_the_fit() -> None:
+    """Unselected inputs, unused neurons and padded outputs come back exactly zero; the rest is fitted."""
+    x, z = _teacher(d=4, g=3, k=3, seed=2)
+    om = torch.tensor([[1.0, 1, 1], [1, 1, 0], [1, 0, 0]])
+    nm = torch.tensor([[[1.0, 1, 1, 1], [1, 1, 0, 0], [1, 1, 1, 0]]])
+    im = torch.tensor([[True, True, True, True], [True, False, True, False], [False, False, False, True]])
+    p, loss, iters = fit_mlp(x, z, om, torch.ones(1, len(x)), torch.full((1, 3), 1e-3), nm, max_iter=50, seed=1,
+                             input_mask=im)
+    assert iters > 0 and np.isfinite(loss)
+    dm = nm[..., None] * im.double()[None, :, None, :]
+    assert float((p.D * (1 - dm)).abs().max()) == 0.0
+    assert float((p.C * (1 - nm[:, :, None, :] * om[None, :, :, None])).abs().max()) == 0.0
+    assert float((p.c0 * (1 - om)).abs().max()) == 0.0 and float((p.d0 * (1 - nm)).abs().max()) == 0.0
+    assert float(p.D[0, 1][:, [0, 2]][:2].abs().min()) > 0.0  # the selected inputs of used neurons move
