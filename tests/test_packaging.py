@@ -64,6 +64,7 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
         "prt_torch.sh.rotation: torch": _TORCH_TENSORS,
         "prt_torch.rig.vertex_frames: sklearn": _MEAN_SHIFT,
         "prt_torch.brdf.factor: sklearn": _RPO_BUILD,
+        "prt_torch.rig.random_pose: sklearn": "the cpca training-pose sampler (k-means) runs in the bake's plan only",
         "prt_torch.rundir -> prt_torch.models.visibility": _LOAD_MODEL,
         "prt_torch.rundir -> prt_torch.bake.store": _DATASET,
     },
