@@ -37,6 +37,9 @@ class TrainConfig(BaseModel):
     selection_weight: float = Field(default=0.01, ge=0, lt=1)  # skinning weight above which a joint counts
     whiten_inputs: bool = False  # measured: whitening hurts held-out error (noise dims get equal weight)
     folds: int = Field(default=4, ge=2, le=L.MAX_FOLDS)
+    # which frames the blocked CV validates on: "all" training frames, or "clips" = only frames of real motion
+    # clips (the random-pose clip stays in every training fold and is never a validation block)
+    cv_validate: Literal["all", "clips"] = "all"
     alphas: list[float] = Field(default_factory=lambda: [1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0],
                                 max_length=L.MAX_LIST_LENGTH)
     mlp_alphas: list[float] = Field(default_factory=lambda: [0.1, 1.0, 10.0, 100.0], max_length=L.MAX_LIST_LENGTH)

@@ -13,10 +13,23 @@ import numpy as np
 from prt_torch.errors import check
 
 
-def blocked_folds(clip_id: np.ndarray, frame_index: np.ndarray, k: int = 4) -> np.ndarray:
-    """Fold number ``(F,)`` int64 in ``[0, k)`` of each frame; every fold is non-empty."""
+def blocked_folds(clip_id: np.ndarray, frame_index: np.ndarray, k: int = 4,
+                  train_only: np.ndarray | None = None) -> np.ndarray:
+    """Fold number ``(F,)`` int64 in ``[0, k)`` of each frame; every fold is non-empty.
+
+    ``train_only (F,)`` bool: frames that are never validated on (fold ``-1``: in every training fold);
+    the ``k`` folds are made from the other frames.
+    """
     clip_id = np.asarray(clip_id)
     frame_index = np.asarray(frame_index)
+    if train_only is not None:
+        train_only = np.asarray(train_only, dtype=bool)
+        check(train_only.shape == clip_id.shape, "folds: train_only must be (F,)")
+        check(int((~train_only).sum()) >= k, f"folds: {int((~train_only).sum())} validation frames cannot make "
+                                             f"{k} folds (cv_validate: clips needs motion clips in training)")
+        out = np.full(clip_id.shape[0], -1, dtype=np.int64)
+        out[~train_only] = blocked_folds(clip_id[~train_only], frame_index[~train_only], k)
+        return out
     n = clip_id.shape[0]
     check(clip_id.shape == frame_index.shape and clip_id.ndim == 1, "folds: clip_id and frame_index must be (F,)")
     check(k >= 2, f"folds: need k >= 2, got {k}")

@@ -40,10 +40,10 @@ def ridge_path(features: np.ndarray, targets: np.ndarray, alphas: np.ndarray,
 def ridge_cv(features: np.ndarray, targets: np.ndarray, mask: np.ndarray, folds: np.ndarray,
              alphas: np.ndarray) -> np.ndarray:
     """Blocked k-fold validation error ``(A, G)``: summed squared error of ``targets (N, G, K)``
-    (masked by ``mask (G, K)``) on each held-out fold, summed over folds."""
+    (masked by ``mask (G, K)``) on each held-out fold, summed over folds (fold ``-1``: always training)."""
     folds = np.asarray(folds)
     err = np.zeros((len(alphas), targets.shape[1]))
-    for k in np.unique(folds):
+    for k in np.unique(folds[folds >= 0]):
         tr = folds != k
         w, b = ridge_path(features, targets, alphas, tr)
         pred = np.einsum("np,apgk->angk", features[~tr], w) + b[:, None]

@@ -91,15 +91,17 @@ SELECTED_KINDS = ("linear", "mlp")  # quadratic keeps the PCA inputs (its featur
 
 
 def reduce_training(train: SplitData, cluster: np.ndarray, cfg: TrainConfig,
-                    skinning: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> Reduced:
+                    skinning: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                    train_only: np.ndarray | None = None) -> Reduced:
     """Input PCA of the poses, per-cluster output PCA of the visibility, blocked folds; with
-    ``skinning = (parents, joints, weights)`` also the per-cluster joint inputs."""
+    ``skinning = (parents, joints, weights)`` also the per-cluster joint inputs. ``train_only (F,)``: frames
+    never validated on in CV (``cv_validate: clips``: the random poses)."""
     inp = PCA.fit(train.pose, variance=cfg.input_variance, whiten=cfg.whiten_inputs, name="pose features")
     if cfg.output_pca == "global":
         out: ClusterPCA | GlobalOutputPCA = GlobalOutputPCA.fit(train.visibility, variance=cfg.output_variance)
     else:
         out = ClusterPCA.fit(train.visibility, cluster, variance=cfg.output_variance)
-    folds = blocked_folds(train.clip_id, train.frame_index, cfg.folds)
+    folds = blocked_folds(train.clip_id, train.frame_index, cfg.folds, train_only)
     sel = xs = None
     if skinning is not None:
         labels = np.unique(cluster, return_inverse=True)[1] if cfg.output_pca == "cluster" else np.zeros_like(cluster)
@@ -186,7 +188,7 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
     z = torch.as_tensor(red.z)
     om = torch.as_tensor(red.mask)
     g = z.shape[1]
-    folds = np.unique(red.folds)
+    folds = np.unique(red.folds[red.folds >= 0])  # fold -1: always training (cv_validate: clips)
     alphas = np.asarray(cfg.mlp_alphas, dtype=np.float64)
     neurons = sorted(set(cfg.neurons))
     task = progress.add_task("mlp", total=None) if progress is not None else None
@@ -350,7 +352,13 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     # the stage's files; model.json (written last, with their sha256) commits them (see unit_files)
     run.begin("train", (*unit_files(run, cfg.kinds), run.model_json))
     skinning = load_skinning(ds) if cfg.input_selection == "joints" else None
-    red = reduce_training(train, ds.cluster, cfg, skinning)
+    train_only = None
+    if cfg.cv_validate == "clips":
+        from prt_torch.bake.plan import RANDOM_CLIP
+
+        random_ids = [i for i, n in enumerate(ds.clip_names) if n == RANDOM_CLIP]
+        train_only = np.isin(train.clip_id, random_ids)
+    red = reduce_training(train, ds.cluster, cfg, skinning, train_only)
     _log(progress, f"input PCA: {ds.n_features} -> {red.inp.n_components} dims ({red.inp.retained:.3f} variance); "
                    f"output PCA: {red.out.n_groups} clusters, dims {red.out.dims.min()}..{red.out.width}")
     fits = fit_kinds(red, cfg, progress)

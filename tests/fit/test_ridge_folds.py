@@ -55,3 +55,30 @@ def test_blocked_folds_whole_clips_or_contiguous_ranges() -> None:
     assert np.bincount(f1).min() == 25
     with pytest.raises(PrtError, match="cannot make"):
         blocked_folds(np.zeros(3, int), np.arange(3), 4)
+
+
+def test_train_only_frames_are_never_validated() -> None:
+    """``cv_validate: clips``: the train-only frames (random poses) get fold -1, the k folds are made from the
+    motion frames alone, and ridge CV's error equals a hand-written loop that validates on motion frames only
+    (with sklearn Ridge fits) while always training on the train-only frames."""
+    rng = np.random.default_rng(5)
+    clip_id = np.repeat(np.arange(6), [30, 25, 20, 15, 10, 40])
+    frame_index = np.concatenate([np.arange(n) for n in (30, 25, 20, 15, 10, 40)])
+    train_only = clip_id == 5
+    folds = blocked_folds(clip_id, frame_index, 4, train_only)
+    assert np.all(folds[train_only] == -1)
+    np.testing.assert_array_equal(folds[~train_only], blocked_folds(clip_id[~train_only], frame_index[~train_only], 4))
+    assert sorted(np.unique(folds[~train_only])) == [0, 1, 2, 3]
+    x = rng.normal(size=(len(clip_id), 5))
+    y = x @ rng.normal(size=(5, 1, 3)).reshape(5, 3) + 0.1 * rng.normal(size=(len(clip_id), 3))
+    alphas = np.array([0.1, 10.0])
+    got = ridge_cv(x, y[:, None, :], np.ones((1, 3)), folds, alphas)[:, 0]
+    want = np.zeros(2)
+    for a, alpha in enumerate(alphas):
+        for k in range(4):
+            tr, va = folds != k, folds == k
+            pred = Ridge(alpha=alpha).fit(x[tr], y[tr]).predict(x[va])
+            want[a] += ((pred - y[va]) ** 2).sum()
+    np.testing.assert_allclose(got, want, rtol=1e-8)
+    with pytest.raises(PrtError, match="validation frames"):
+        blocked_folds(clip_id, frame_index, 4, np.ones_like(train_only))
