@@ -14,7 +14,7 @@ SMALL_CONFIG = {
     "name": "small",
     "character": {"source": "builtin", "density": 0.25, "fps": 10.0, "train_clips": ["stretch"],
                   "random_poses": 60, "heldout_clips": ["wave"], "seed": 0},
-    "bake": {"order": 4, "n_rays": 128, "frames_per_task": 8, "seed": 0},
+    "bake": {"order": 4, "n_rays": 128, "frames_per_task": 8, "seed": 0, "below_horizon": "zero"},
 }
 
 

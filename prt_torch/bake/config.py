@@ -26,9 +26,10 @@ class BakeConfig(BaseModel):
 
     order: int = Field(default=4, ge=1, le=6)  # SH order of local-frame visibility
     n_rays: int = Field(default=512, ge=16, le=L.MAX_RAYS)  # hemisphere rays per vertex
-    #: visibility below the horizon (no ray is shot there): "zero" (docs/DESIGN.md) or "one" (seed 003 eq. 1, an
-    #: unoccluded vertex is the constant 1); recorded in the dataset, which every reader follows
-    below_horizon: Literal["zero", "one"] = "zero"
+    #: visibility below the horizon (no ray is shot there): "one" (seed 003 eq. 1, an unoccluded vertex is the
+    #: constant 1; the default: measured closer to the full-integral reference, docs/DESIGN.md) or "zero"; recorded
+    #: in the dataset, which every reader follows (a store without it is "zero")
+    below_horizon: Literal["zero", "one"] = "one"
     transfer: bool = False  # also bake global-frame cosine-weighted diffuse transfer
     transfer_order: int = Field(default=6, ge=1, le=8)
     bounces: int = Field(default=0, ge=0, le=3)  # diffuse interreflection bounces (transfer only)

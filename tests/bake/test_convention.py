@@ -147,21 +147,22 @@ def test_store_records_the_convention_and_refuses_the_other(one_run: Path) -> No
     assert "1 below the horizon" in ds.attrs["conventions"]["visibility"]
     assert below_horizon_of(ds.attrs) == "one"
     with pytest.raises(PrtError, match=r"bake\.below_horizon='one', the config has 'zero'") as e:
-        bake(config_from_dict(tiny_config(one_run)), workers=1, progress=False)  # default: "zero"
+        bake(config_from_dict(tiny_config(one_run, below_horizon="zero")), workers=1, progress=False)
     assert "\n" not in str(e.value)
     # the same convention resumes (nothing left to do)
     bake(config_from_dict(tiny_config(one_run, below_horizon="one")), workers=1, progress=False)
 
 
 def test_store_without_the_key_is_zero(tmp_path: Path) -> None:
-    """Stores baked before the setting existed are "zero": they resume with the default and refuse "one"."""
+    """Stores baked before the setting existed are "zero": they resume with a config that pins "zero" and
+    refuse "one" (the default since issue 9) with one line."""
     import zarr
 
     from prt_torch.bake.runner import bake
     from prt_torch.bake.store import below_horizon_of, open_dataset
     from prt_torch.config import config_from_dict
 
-    cfg = tiny_config(tmp_path)
+    cfg = tiny_config(tmp_path, below_horizon="zero")
     cfg["character"]["random_poses"] = 1
     cfg["character"]["train_clips"] = []
     path = bake(config_from_dict(cfg), workers=1, progress=False)

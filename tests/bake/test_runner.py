@@ -33,7 +33,7 @@ def tiny_config(run_dir: Path, **bake: object) -> dict:
         "run_dir": str(run_dir),
         "character": {"source": "builtin", "density": 0.05, "fps": 3.0, "random_poses": 14,
                       "heldout_clips": ["squat"], "seed": 1},
-        "bake": {"order": 3, "n_rays": 64, "frames_per_task": 4, "seed": 7, **bake},
+        "bake": {"order": 3, "n_rays": 64, "frames_per_task": 4, "seed": 7, "below_horizon": "zero", **bake},
     }
 
 
@@ -278,7 +278,7 @@ def test_gltf_fox_bakes(tmp_path: Path, shared_data: Path) -> None:
     cfg = {"name": "fox", "run_dir": str(tmp_path),
            "character": {"source": str(shared_data / "characters" / "Fox.glb"), "height": 1.8, "fps": 5.0,
                          "train_clips": ["Walk"], "heldout_clips": ["Run"]},
-           "bake": {"order": 3, "n_rays": 32, "frames_per_task": 4}}
+           "bake": {"order": 3, "n_rays": 32, "frames_per_task": 4, "below_horizon": "zero"}}
     ds = open_dataset(bake(config_from_dict(cfg), workers=1, progress=False))
     assert ds.complete and ds.clip_names == ["Walk", "Run"] and ds.heldout_mask.sum() > 0
     dc = ds.visibility[..., 0]
