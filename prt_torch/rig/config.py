@@ -42,6 +42,22 @@ def _parse_times(text: str) -> tuple[float | None, float | None]:
     return out[0], out[1]
 
 
+def _checked_frames(v: str | None) -> str | None:
+    """A ``frames: "a:b"`` slice string that parses and selects a non-empty range (when both ends have one sign)."""
+    if v is not None:
+        start, stop = _parse_frames(v)
+        if start is not None and stop is not None and (start >= 0) == (stop >= 0) and stop <= start:
+            raise ValueError(f"empty frame range {v!r}")
+    return v
+
+
+def _checked_path(v: str) -> str:
+    """A path string of a config (no NUL character, which no file system accepts)."""
+    if "\x00" in v:
+        raise ValueError("a path must not contain a NUL character")
+    return v
+
+
 class ClipRange(BaseModel):
     """A frame range of one of the character's clips, used as its own dataset clip.
 
@@ -62,11 +78,7 @@ class ClipRange(BaseModel):
     @field_validator("frames")
     @classmethod
     def _check_frames(cls, v: str | None) -> str | None:
-        if v is not None:
-            start, stop = _parse_frames(v)
-            if start is not None and stop is not None and (start >= 0) == (stop >= 0) and stop <= start:
-                raise ValueError(f"empty frame range {v!r}")
-        return v
+        return _checked_frames(v)
 
     @field_validator("times")
     @classmethod
@@ -178,18 +190,12 @@ class MotionConfig(BaseModel):
     @field_validator("file")
     @classmethod
     def _check_file(cls, v: str) -> str:
-        if "\x00" in v:
-            raise ValueError("a path must not contain a NUL character")
-        return v
+        return _checked_path(v)
 
     @field_validator("frames")
     @classmethod
     def _check_frames(cls, v: str | None) -> str | None:
-        if v is not None:
-            start, stop = _parse_frames(v)
-            if start is not None and stop is not None and (start >= 0) == (stop >= 0) and stop <= start:
-                raise ValueError(f"empty frame range {v!r}")
-        return v
+        return _checked_frames(v)
 
     def frame_slice(self) -> slice:
         """The selected frames of the retargeted (resampled) motion."""
@@ -264,9 +270,7 @@ class CharacterConfig(BaseModel):
     @field_validator("source")
     @classmethod
     def _check_source(cls, v: str) -> str:
-        if "\x00" in v:
-            raise ValueError("a path must not contain a NUL character")
-        return v
+        return _checked_path(v)
 
     @field_validator("train_clips")
     @classmethod
