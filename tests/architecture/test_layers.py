@@ -23,14 +23,14 @@ RANKS: dict[str, int] = {
     "__init__": 0, "errors": 0, "io": 0, "runtime": 0, "rundir": 0, "config": 0, "limits": 0,
     "sh": 1,
     "light": 2, "brdf": 2,
-    "shade": 3, "metrics": 3,
+    "shade": 3, "metrics": 3, "shexp": 3, "sg": 3,
     "rig": 4,
-    "bake": 5,
+    "bake": 5, "blockers": 5, "heightfield": 5, "vct": 5, "scene": 5,
     "reduce": 6, "models": 6,
     "fit": 7,
     "export": 8,
     "player": 9,
-    "eval": 10, "compare": 10, "commands": 11, "cli": 11, "__main__": 12,
+    "eval": 10, "compare": 10, "web": 10, "commands": 11, "cli": 11, "__main__": 12,
 }
 
 #: lazy (function-level) imports allowed to point up, for the run-directory owner only
