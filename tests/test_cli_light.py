@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -72,3 +74,61 @@ def test_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str])
         assert "Traceback" not in err and out == ""
     code, out, _ = _run(capsys, "light", str(tmp_path / "ok.pfm"), "--order", "1", "--json")
     assert json.loads(out)["coefficients"][0][0] == pytest.approx(math.sqrt(4 * math.pi))
+
+
+# ------------------------------------------------------------------------------------------ --sg (seed 004)
+
+
+def test_sg_json_on_real_maps(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("healpy", reason="the sg extra (healpy) is not installed")
+    from prt_torch.light.envmap import load_envmap
+    from prt_torch.sg.lobes import SGLobes
+
+    path = shared_data / "envmaps" / "spiaggia_di_mondello_1k.hdr"
+    code, out, err = _run(capsys, "light", str(path), "--order", "1", "--sg", "--sg-levels", "3", "--json",
+                          "--sg-save", str(tmp_path / "sg.npz"))
+    assert code == 0, err
+    obj = json.loads(out)
+    e = obj["sg_rel_error"]
+    assert len(e) == 4 and all(b < a for a, b in zip(e, e[1:], strict=False)) and e[-1] < 0.3
+    lobes = obj["sg_lobes"]
+    assert len(lobes) == len(SGLobes.load(tmp_path / "sg.npz"))
+    axes = np.array([lb["axis"] for lb in lobes])
+    np.testing.assert_allclose(np.linalg.norm(axes, axis=1), 1, atol=1e-5)
+    assert min(lb["sharpness"] for lb in lobes) > 0 and all(len(lb["amplitude"]) == 3 for lb in lobes)
+    # the sun: the brightest pixel of the map, ~half of the map's power (computed here from the pixels)
+    env = load_envmap(path)
+    lum = env.image @ np.array([0.2126, 0.7152, 0.0722])
+    r, c = np.unravel_index(np.argmax(lum), lum.shape)
+    sun = env.directions()[r, c]
+    power = (lum * env.solid_angles()).sum()
+    assert obj["peaks"], "the sun was not detected"
+    p = obj["peaks"][0]
+    assert math.degrees(math.acos(min(1.0, float(np.dot(p["direction"], sun))))) < 1.0
+    assert np.dot(p["power"], [0.2126, 0.7152, 0.0722]) > 0.4 * power
+    assert 1e-5 < p["solid_angle"] < 1e-3 and len(p["lobes"]) >= 1
+
+
+def test_sg_table_on_uffizi(shared_data: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("healpy", reason="the sg extra (healpy) is not installed")
+    code, out, err = _run(capsys, "light", str(shared_data / "envmaps" / "uffizi.hdr"), "--order", "1", "--sg",
+                          "--sg-levels", "2")
+    assert code == 0, err
+    assert "SG lighting" in out and "peaks" in out and "rel. residual" in out
+
+
+def test_sg_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                monkeypatch: pytest.MonkeyPatch) -> None:
+    write_pfm(tmp_path / "ok.pfm", np.ones((8, 16, 3), np.float32))
+    write_pfm(tmp_path / "black.pfm", np.zeros((8, 16, 3), np.float32))
+    cases = [(("--sg-levels", "8"), "--sg-levels"), (("--sg-threshold", "1.5"), "--sg-threshold"),
+             (("--sg-save", str(tmp_path / "x.txt")), "--sg-save")]
+    for argv, msg in cases:
+        code, out, err = _run(capsys, "light", str(tmp_path / "ok.pfm"), "--sg", *argv)
+        assert code == 2 and msg in err and err.count("\n") == 1 and out == "", err
+    if importlib.util.find_spec("healpy") is not None:
+        code, out, err = _run(capsys, "light", str(tmp_path / "black.pfm"), "--sg", "--json")
+        assert code == 2 and "black" in err and err.count("\n") == 1, err
+    monkeypatch.setitem(sys.modules, "healpy", None)  # as if the sg extra were not installed
+    code, out, err = _run(capsys, "light", str(tmp_path / "ok.pfm"), "--sg")
+    assert code == 2 and "prt-torch[sg]" in err and err.count("\n") == 1, err

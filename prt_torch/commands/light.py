@@ -5,6 +5,14 @@ mappings) and, with ``--lobes K``, a ``K``-lobe ZH fit (:func:`prt_torch.sh.zhfi
 ``--json`` one JSON object goes to stdout: ``file``, ``layout``, ``width``, ``height``, ``order``,
 ``coefficients`` (``n*n`` rows of ``[r, g, b]`` in index order ``l*(l+1)+m``) and, with ``--lobes``,
 ``lobes`` (``[{"direction": [x, y, z], "coeffs": n rows of [r, g, b]}, ...]``) and ``lobe_rel_error``.
+
+``--sg`` adds the spherical-Gaussian lighting of seed 004 (:func:`prt_torch.sg.lighting.fit_envmap_sg`:
+multiscale residual fit on HEALPix grids, peak detection): JSON keys ``sg_lobes``
+(``[{"axis": [x, y, z], "sharpness": lambda, "amplitude": [r, g, b]}, ...]``, ``G(v) = amplitude
+exp(sharpness (v . axis - 1))``, world frame z up), ``sg_rel_error`` (relative L2 residual after each scale),
+``sg_nsides``, ``sg_lobes_per_scale``, ``sg_seconds`` and ``peaks`` (``[{"direction", "solid_angle", "power",
+"n_pixels", "lobes"}, ...]``, strongest first); ``--sg-save FILE`` writes the lobes (``.json`` / ``.npz``).
+``--sg`` needs the ``sg`` extra (healpy, torch).
 """
 
 from __future__ import annotations
@@ -13,7 +21,8 @@ import argparse
 import json
 import sys
 
-HELP = "Project an HDR environment map (.hdr/.exr/.pfm, lat-long or probe) to SH; optional ZH lobe fit."
+HELP = ("Project an HDR environment map (.hdr/.exr/.pfm, lat-long or probe) to SH; optional ZH lobe fit, "
+        "--sg spherical-Gaussian fit with peak detection.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,6 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layout", default="auto", choices=["auto", "latlong", "probe"],
                         help="pixel layout (auto: 2:1 -> latlong, 1:1 -> probe)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
+    parser.add_argument("--sg", action="store_true",
+                        help="also fit spherical Gaussians (multiscale HEALPix residual fit + peak detection)")
+    parser.add_argument("--sg-levels", type=int, default=4, metavar="L",
+                        help="last HEALPix scale (nside 2^L, 12*4^L lobes), 0..7 (default 4)")
+    parser.add_argument("--sg-threshold", type=float, default=0.02, metavar="E",
+                        help="stop once the relative residual is <= E (default 0.02)")
+    parser.add_argument("--sg-save", default=None, metavar="FILE", help="write the SG lobes to FILE (.json or .npz)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
 
         with err.status(f"fitting {args.lobes} ZH lobes", spinner="dots") if not args.json else _null():
             lobes = fit_zh_lobes(sh, n_lobes=args.lobes)
+    sg = None
+    if args.sg:
+        sg = _fit_sg(args, env, err)
     h, w = env.shape
     if args.json:
         out: dict[str, object] = {"file": str(args.file), "layout": env.layout, "width": w, "height": h,
@@ -54,11 +73,71 @@ def run(args: argparse.Namespace) -> int:
             out["lobes"] = [{"direction": lobes.dirs[k].tolist(), "coeffs": lobes.coeffs[k].tolist()}
                             for k in range(lobes.n_lobes)]
             out["lobe_rel_error"] = float(lobes.rel_error)
+        if sg is not None:
+            d = sg.lobes.to_dict()
+            out["sg_lobes"] = [{"axis": a, "sharpness": lam, "amplitude": m}
+                               for a, lam, m in zip(d["axis"], d["sharpness"], d["amplitude"], strict=True)]
+            out["sg_rel_error"] = sg.rel_error_per_scale
+            out["sg_nsides"] = sg.nsides
+            out["sg_lobes_per_scale"] = sg.lobes_per_scale
+            out["sg_peaks_separated"] = sg.peaks_separated
+            out["sg_seconds"] = sg.seconds
+            out["peaks"] = [p.to_dict() for p in sg.peaks]
         json.dump(out, sys.stdout)
         sys.stdout.write("\n")
         return 0
     _print_tables(args, env.layout, w, h, sh, lobes)
+    if sg is not None:
+        _print_sg(sg)
     return 0
+
+
+def _fit_sg(args: argparse.Namespace, env: object, err: object) -> object:
+    """Run :func:`prt_torch.sg.lighting.fit_envmap_sg` (one-line error where the ``sg`` extra is missing)."""
+    from prt_torch.errors import PrtError
+
+    if not 0 <= args.sg_levels <= 7:
+        raise PrtError(f"--sg-levels must be in 0..7, got {args.sg_levels}")
+    if not 0 <= args.sg_threshold < 1:
+        raise PrtError(f"--sg-threshold must be in [0, 1), got {args.sg_threshold}")
+    if args.sg_save is not None and not str(args.sg_save).endswith((".json", ".npz")):
+        raise PrtError(f"--sg-save must end in .json or .npz, got {args.sg_save}")
+    try:
+        import healpy  # noqa: F401
+        import torch  # noqa: F401
+    except ImportError as exc:
+        raise PrtError(f"prt light --sg needs {exc.name}: pip install 'prt-torch[sg]'") from None
+    from prt_torch.sg.lighting import fit_envmap_sg
+
+    with err.status(f"fitting spherical Gaussians (HEALPix scales 0..{args.sg_levels})", spinner="dots") \
+            if not args.json else _null():  # type: ignore[attr-defined]
+        fit = fit_envmap_sg(env, max_level=args.sg_levels, rel_threshold=args.sg_threshold)  # type: ignore[arg-type]
+    if args.sg_save is not None:
+        fit.lobes.save(args.sg_save)
+    return fit
+
+
+def _print_sg(fit: object) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    t = Table(title=f"SG lighting: {len(fit.lobes)} lobes, multiscale HEALPix fit in "  # type: ignore[attr-defined]
+              f"{fit.seconds['total']:.2f} s (world frame, z up)")  # type: ignore[attr-defined]
+    for col in ("scale", "nside", "sharpness", "lobes", "rel. residual"):
+        t.add_column(col, justify="right")
+    for s, (ns, lam, n, e) in enumerate(zip(fit.nsides, fit.sharpness_per_scale,  # type: ignore[attr-defined]
+                                            fit.lobes_per_scale, fit.rel_error_per_scale, strict=True)):  # type: ignore
+        t.add_row(str(s), str(ns), f"{lam:.4g}", str(n), f"{e:.4f}")
+    con.print(t)
+    pt = Table(title=f"{len(fit.peaks)} peaks (threshold + connected components)"  # type: ignore[attr-defined]
+               + (": their light above the threshold is in its own lobes" if fit.peaks_separated else ""))  # type: ignore
+    for col in ("#", "direction (x, y, z)", "solid angle (sr)", "power (R, G, B)", "pixels", "SGs"):
+        pt.add_column(col, justify="right")
+    for i, p in enumerate(fit.peaks):  # type: ignore[attr-defined]
+        pt.add_row(str(i), ", ".join(f"{x:+.3f}" for x in p.direction), f"{p.solid_angle:.4g}",
+                   ", ".join(f"{x:.4g}" for x in p.power), str(p.n_pixels), str(len(p.lobes)))
+    con.print(pt)
 
 
 class _null:
