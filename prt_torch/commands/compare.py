@@ -19,6 +19,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--motion-fps", type=float, default=None, help="resample the motion to this rate")
     parser.add_argument("--frames", type=int, default=None, help="at most this many frames (evenly spaced)")
     parser.add_argument("--env", default=None, help="HDR environment map (default: the player's procedural sky)")
+    parser.add_argument("--light", default="sky", choices=["sky", "smooth", "sun"],
+                        help="sky: the player's lighting (--env, or the procedural sky + its sun); smooth: --env or "
+                             "the sky without its sun; sun: that plus a small bright sun disk (sharp lighting)")
+    parser.add_argument("--sun-size", type=float, default=None,
+                        help="--light sun: the sun's half-angle in degrees (default 2)")
+    parser.add_argument("--sun-power", type=float, default=None,
+                        help="--light sun: the sun's power, irradiance on a facing surface (default 8: the player's)")
     parser.add_argument("--image-frames", type=int, default=8, help="frames rendered for image PSNR (default 8)")
     parser.add_argument("--reference-frames", type=int, default=4,
                         help="frames of the Monte-Carlo reference (default 4; 0 disables)")
@@ -55,12 +62,19 @@ def run(args: argparse.Namespace) -> int:
         limits.check_float(args.motion_fps, "--motion-fps", 0.0, limits.MAX_FPS, lo_open=True)
     if args.env is not None:
         V.input_file(args.env, "--env")
+    if args.sun_size is not None:
+        limits.check_float(args.sun_size, "--sun-size", 0.05, 30.0)
+    if args.sun_power is not None:
+        limits.check_float(args.sun_power, "--sun-power", 0.0, 1e6, lo_open=True)
+    if args.light != "sun" and (args.sun_size is not None or args.sun_power is not None):
+        raise PrtError("--sun-size and --sun-power need --light sun")
     V.input_dir(args.run, "run directory")
     console = Console(stderr=True)
     result = run_compare(args.run, methods=methods, clip=args.clip, max_frames=args.frames, env=args.env,
                          image_frames=args.image_frames, reference_frames=args.reference_frames,
                          reference_rays=args.reference_rays, threads=args.threads, log=console.log,
-                         progress=not args.json, motion=args.motion, motion_fps=args.motion_fps)
+                         progress=not args.json, motion=args.motion, motion_fps=args.motion_fps,
+                         light=args.light, sun_size=args.sun_size, sun_power=args.sun_power)
     if args.json:
         print(json.dumps(json.loads(json.dumps(result, default=float)), indent=2))
         return 0

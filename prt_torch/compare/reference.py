@@ -35,11 +35,13 @@ from prt_torch.errors import PrtError, check
 @dataclass
 class ReferenceLight:
     """A radiance function ``radiance(dirs (N, 3) world) -> (N, 3)`` plus delta lights ``[(direction (3,),
-    power (3,))]`` (irradiance on a surface facing the light), and a description."""
+    power (3,))]`` (irradiance on a surface facing the light), uniform disk lights ``[(direction (3,), half_angle,
+    radiance (3,))]`` (sampled with their own rays: :func:`reference_radiance` ``disk_rays``), and a description."""
 
     radiance: Callable[[np.ndarray], np.ndarray]
     deltas: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     source: str = ""
+    disks: list[tuple[np.ndarray, float, np.ndarray]] = field(default_factory=list)
 
 
 def sky_reference() -> ReferenceLight:
@@ -89,7 +91,7 @@ def reference_light(env: str | Path | None) -> ReferenceLight:
 
 def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndarray, eye: np.ndarray,
                        light: ReferenceLight, brdfs: Mapping[str, Any], n_rays: int, seed: int, offset: float,
-                       max_rays: int = 1 << 19) -> dict[str, np.ndarray]:
+                       max_rays: int = 1 << 19, disk_rays: int = 64) -> dict[str, np.ndarray]:
     """One Monte-Carlo estimate of the outgoing radiance toward ``eye`` of every vertex of one posed frame.
 
     Args:
@@ -100,6 +102,7 @@ def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndar
         n_rays: hemisphere directions per vertex ``R``; seed: the estimate's seed.
         offset: ray origin offset along the normal (world units).
         max_rays: rays per block (memory bound).
+        disk_rays: rays per vertex and disk light (uniform in the disk's cap, randomised per seed).
 
     Returns:
         ``{name: (V, 3) float64}``; the radiance of a vertex seen from below its horizon (``wo.z <= 0``) is 0
@@ -154,7 +157,178 @@ def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndar
             cs = np.maximum(s_local[:, 2], 0.0) * lit
             for name, brdf in brdfs.items():
                 out[name][v0:v1] += power * brdf(s_local, wo_all[v0:v1]) * cs[:, None]
+        for d, half, rad in light.disks:
+            _add_disk(out, scene, f, origins_all[v0:v1], wo_all[v0:v1], slice(v0, v1), np.asarray(d, np.float64),
+                      float(half), np.asarray(rad, np.float64), brdfs, int(disk_rays), int(seed))
     return out
+
+
+def _add_disk(out: dict[str, np.ndarray], scene: Any, frames: np.ndarray, origins: np.ndarray, wo: np.ndarray,
+              sl: slice, d: np.ndarray, half: float, rad: np.ndarray, brdfs: Mapping[str, Any], n: int,
+              seed: int) -> None:
+    """Add a uniform disk light (cap of half-angle ``half`` about ``d``, radiance ``rad``) to ``out[name][sl]``:
+    ``n`` stratified directions uniform in the cap (a randomised spherical-Fibonacci cap set, turned per seed),
+    Embree visibility, analytic BRDF, weight ``Omega / n``."""
+    from prt_torch.sh.quadrature import hemisphere_directions
+
+    check(n >= 1, f"reference: need >= 1 ray per disk light, got {n}")
+    loc = hemisphere_directions(n, seed=seed + 31)  # z uniform in [0, 1] -> rescale into the cap
+    c = math.cos(half)
+    z = 1.0 - loc[:, 2] * (1.0 - c)
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = np.arctan2(loc[:, 1], loc[:, 0])
+    t1 = np.cross(d, [0.0, 0.0, 1.0] if abs(d[2]) < 0.9 else [1.0, 0.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(d, t1)
+    dirs = (r * np.cos(phi))[:, None] * t1 + (r * np.sin(phi))[:, None] * t2 + z[:, None] * d  # (n, 3) world
+    nv = origins.shape[0]
+    world = np.broadcast_to(dirs[:, None, :], (n, nv, 3))
+    occ = scene.occluded(np.ascontiguousarray(np.broadcast_to(origins, (n, nv, 3)), dtype=np.float32).reshape(-1, 3),
+                         np.ascontiguousarray(world, dtype=np.float32).reshape(-1, 3)).reshape(n, nv)
+    wi = np.einsum("vij,rj->rvi", frames, dirs)  # (n, V, 3) local
+    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+    cos = np.maximum(wi[..., 2], 0.0) * np.logical_not(occ)
+    w = 2 * math.pi * (1.0 - c) / n
+    wo_b = np.ascontiguousarray(np.broadcast_to(wo, (n, nv, 3))).reshape(-1, 3)
+    for name, brdf in brdfs.items():
+        fr = brdf(wi.reshape(-1, 3), wo_b).reshape(n, nv, 3)
+        out[name][sl] += w * np.einsum("rvc,rv->vc", fr, cos) * rad
+
+
+# -- the lightings of ``prt compare --light`` ------------------------------------------------------------------------
+
+#: ``--light`` choices: the player's sky (CIE sky + ground + its sun as a delta light / SH disk), the same sky
+#: without the sun (smooth), or the sky (or ``--env`` map) plus a small bright sun disk (sharp)
+LIGHTS = ("sky", "smooth", "sun")
+#: default sun of ``--light sun``: half-angle (degrees) and power (RGB irradiance on a facing surface)
+SUN_HALF_ANGLE_DEG = 2.0
+SUN_POWER = (8.0, 7.4, 6.4)
+
+
+@dataclass
+class LightSpec:
+    """One lighting in three forms (:func:`spec_envmap`, :func:`spec_sh`, :func:`spec_reference`): an optional HDR
+    ``env`` file (``None``: the player's procedural sky without its sun), plus an optional sun disk ``sun_dir (3,)``
+    of ``sun_half_angle`` radians and RGB ``sun_power`` (``int L dOmega`` over the disk)."""
+
+    name: str
+    env: str | None = None
+    sun_dir: np.ndarray | None = None
+    sun_half_angle: float = 0.0
+    sun_power: np.ndarray | None = None
+
+    @property
+    def sun_radiance(self) -> np.ndarray:
+        assert self.sun_power is not None
+        return self.sun_power / (2 * math.pi * (1.0 - math.cos(self.sun_half_angle)))
+
+    @property
+    def source(self) -> str:
+        base = self.env or "procedural sky without its sun (CIE clear sky + ground)"
+        if self.sun_dir is None:
+            return base
+        return (f"{base} + sun disk (half-angle {math.degrees(self.sun_half_angle):.2f} deg, power "
+                f"{np.round(self.sun_power, 2).tolist()}, direction {np.round(self.sun_dir, 3).tolist()})")
+
+
+def light_spec(light: str, env: str | Path | None = None, sun_size_deg: float = SUN_HALF_ANGLE_DEG,
+               sun_power: float | tuple[float, float, float] | None = None) -> LightSpec:
+    """The :class:`LightSpec` of ``prt compare --light`` (``"smooth"`` or ``"sun"``; ``"sky"`` is handled by
+    :func:`reference_light`). The sun direction is the player's (:data:`~prt_torch.player.lighting.
+    DEFAULT_SUN_DIRECTION`); ``sun_power``: a scalar (times the default colour's ratios) or RGB."""
+    from prt_torch.player.lighting import DEFAULT_SUN_DIRECTION
+
+    check(light in ("smooth", "sun"), f"--light must be one of {', '.join(LIGHTS)}, got {light!r}")
+    check(math.isfinite(sun_size_deg) and 0.05 <= sun_size_deg <= 30,
+          f"--sun-size must be in [0.05, 30] degrees, got {sun_size_deg}")
+    envs = str(env) if env is not None and str(env) not in ("", "sky") else None
+    if envs is not None:
+        check(Path(envs).is_file(), f"environment map not found: {envs}")
+    if light == "smooth":
+        return LightSpec("smooth", envs)
+    p = np.asarray(SUN_POWER, dtype=np.float64)
+    if sun_power is not None:
+        sp = np.asarray(sun_power, dtype=np.float64).reshape(-1)
+        check(sp.size in (1, 3) and bool(np.isfinite(sp).all()) and bool((sp > 0).all()),
+              f"--sun-power must be one positive number or three, got {sun_power}")
+        p = p / p.max() * sp[0] if sp.size == 1 else sp
+    d = np.asarray(DEFAULT_SUN_DIRECTION, dtype=np.float64)
+    return LightSpec("sun", envs, d / np.linalg.norm(d), math.radians(sun_size_deg), p)
+
+
+def sky_spec(env: str | Path | None = None) -> LightSpec:
+    """The :class:`LightSpec` of ``--light sky``: the player's default procedural sky and its sun (a disk of the
+    player's half-angle and power, :data:`~prt_torch.player.lighting.DEFAULT_SUN_COLOR`), or the ``env`` file alone
+    (for methods that need the lighting as a map, e.g. ``sg_vct``)."""
+    import inspect as _inspect
+
+    from prt_torch.light.sources import sky_sh
+    from prt_torch.player.lighting import DEFAULT_SUN_COLOR, DEFAULT_SUN_DIRECTION
+
+    if env is not None and str(env) not in ("", "sky"):
+        return LightSpec("sky", str(env))
+    half = float(_inspect.signature(sky_sh).parameters["sun_half_angle"].default)
+    d = np.asarray(DEFAULT_SUN_DIRECTION, dtype=np.float64)
+    return LightSpec("sky", None, d / np.linalg.norm(d), half, np.asarray(DEFAULT_SUN_COLOR, dtype=np.float64))
+
+
+def _base_envmap(spec: LightSpec, height: int) -> Any:
+    from prt_torch.light.envmap import load_envmap
+    from prt_torch.light.sources import sky_envmap
+    from prt_torch.player.lighting import DEFAULT_SUN_DIRECTION
+
+    if spec.env is not None:
+        return load_envmap(spec.env)
+    return sky_envmap(np.asarray(DEFAULT_SUN_DIRECTION) / np.linalg.norm(DEFAULT_SUN_DIRECTION), height=height)
+
+
+def spec_envmap(spec: LightSpec, height: int | None = None) -> Any:
+    """The lighting as one lat-long (or the file's) :class:`~prt_torch.light.envmap.EnvMap`, the sun disk
+    rasterised by :func:`prt_torch.sg.shading.add_sun_disk`. The procedural sky's ``height`` defaults to 512 rows,
+    more (up to 2048) so that the disk spans >= 3 pixels in radius (:func:`~prt_torch.sg.shading.sun_map_height`)."""
+    from prt_torch.sg.shading import add_sun_disk, sun_map_height
+
+    if height is None:
+        height = sun_map_height(spec.sun_half_angle) if spec.sun_dir is not None else 512
+    env = _base_envmap(spec, height)
+    if spec.sun_dir is None:
+        return env
+    return add_sun_disk(env, spec.sun_dir, spec.sun_half_angle, spec.sun_power, source=spec.source)
+
+
+def spec_sh(spec: LightSpec, order: int) -> np.ndarray:
+    """SH ``(C, 3)`` of the lighting: the base map projected, plus the sun as an SH disk light."""
+    from prt_torch.light.envmap import envmap_to_sh
+    from prt_torch.light.sources import directional_light_sh
+
+    sh = envmap_to_sh(_base_envmap(spec, 128), order)
+    if spec.sun_dir is not None:
+        sh = sh + directional_light_sh(spec.sun_dir, spec.sun_power, order, spec.sun_half_angle)
+    return sh
+
+
+def spec_reference(spec: LightSpec) -> ReferenceLight:
+    """The lighting at full resolution: the base map's radiance function (the procedural sky evaluated at each
+    ray, or the file's nearest pixel), plus the sun as a disk light sampled with its own rays."""
+    from prt_torch.light.sources import cie_clear_sky, sky_sh
+    from prt_torch.player.lighting import DEFAULT_SUN_DIRECTION
+
+    if spec.env is not None:
+        base = envmap_reference(spec.env)
+    else:
+        defaults = {k: p.default for k, p in inspect.signature(sky_sh).parameters.items()}
+        sky = np.asarray(defaults["sky_color"], dtype=np.float64)
+        ground = np.asarray(defaults["ground_color"], dtype=np.float64)
+        s = np.asarray(DEFAULT_SUN_DIRECTION, dtype=np.float64)
+        s = s / np.linalg.norm(s)
+
+        def radiance(dirs: np.ndarray) -> np.ndarray:
+            d = np.asarray(dirs, dtype=np.float64)
+            return cie_clear_sky(d, s)[..., None] * sky + (d[..., 2] <= 0)[..., None] * ground
+
+        base = ReferenceLight(radiance, [], "")
+    disks = [] if spec.sun_dir is None else [(spec.sun_dir, spec.sun_half_angle, spec.sun_radiance)]
+    return ReferenceLight(base.radiance, [], spec.source, disks)
 
 
 def front_facing(positions: np.ndarray, frames: np.ndarray, eye: np.ndarray) -> np.ndarray:

@@ -1,0 +1,19 @@
+"""Voxel cone-traced visibility of animated geometry (seed 004 sec. 5; Crassin et al. 2011).
+
+Per frame: voxelise the posed mesh into a dense opacity grid (:mod:`prt_torch.vct.voxelize`), pre-filter it
+into a mip pyramid packed in one 3D atlas (:mod:`prt_torch.vct.pyramid`), and trace cones from every shaded
+vertex with ``grid_sample`` front-to-back opacity accumulation (:mod:`prt_torch.vct.trace`). The cones come
+from the BRDF lobes (eq. 5-6 aperture, 7 sub-cones by circle packing, Fig. 4) and the detected light peaks
+(:mod:`prt_torch.vct.cones`). Everything is torch: the device follows the input tensors.
+"""
+
+from prt_torch.vct.cones import ConeSet, cone_aperture, cone_sharpness, pack_lobe_cones, peak_cones
+from prt_torch.vct.grid import VoxelGrid, fit_grid
+from prt_torch.vct.pyramid import OpacityPyramid, build_pyramid
+from prt_torch.vct.trace import TraceSettings, trace_cones
+from prt_torch.vct.visibility import ConeTracer
+from prt_torch.vct.voxelize import is_closed_mesh, voxelize
+
+__all__ = ["ConeSet", "ConeTracer", "OpacityPyramid", "TraceSettings", "VoxelGrid", "build_pyramid",
+           "cone_aperture", "cone_sharpness", "fit_grid", "is_closed_mesh", "pack_lobe_cones", "peak_cones",
+           "trace_cones", "voxelize"]
