@@ -49,6 +49,8 @@ class BakeConfig(BaseModel):
     min_cluster_size: int = Field(default=8, ge=1, le=L.MAX_VERTICES)
     #: rays traced per Embree call (bounds memory: 12 bytes per ray per buffer)
     vertex_chunk_rays: int = Field(default=1 << 20, ge=1024, le=L.MAX_CHUNK_RAYS)
+    #: sphere blockers fitted on the rest mesh, shipped by ``prt export`` (SHEXP, seed 003 sec. 7; not a baked number)
+    blockers: int = Field(default=48, ge=1, le=1024)
 
     @field_validator("scheduler")
     @classmethod

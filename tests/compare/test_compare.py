@@ -27,6 +27,8 @@ def test_schema_and_files(small_run: Path, compared: dict[str, Any]) -> None:
     r = compared
     assert r["frames"] == 5 and r["clips"] == ["wave"] and r["brdfs"] == ["lambert", "phong"]
     assert isinstance(r["lighting"], str) and r["lighting_path"] == "lobes"
+    # the default methods; shexp is one only for runs exported with a sphere set (small_run is not exported;
+    # tests/compare/test_shexp_method.py checks that side)
     assert list(r["methods"]) == ["sh_truth", "unshadowed", *LEARNED]
     for name, m in r["methods"].items():
         assert KEYS <= set(m), name

@@ -1,0 +1,10 @@
+"""SH exponentiation of sphere blockers (Ren et al. 2006; seed 003 sec. 3 eq. 3, sec. 7): log-visibility
+table of one sphere, OL / HYB SH exponentials, batched visibility of receivers under spheres (torch, ONNX)."""
+
+from prt_torch.shexp.exponential import SHExponential, sh_exp
+from prt_torch.shexp.tables import cap_complement_zh, cos_log_table, exp_reference, log_visibility_table, ol_table
+from prt_torch.shexp.visibility import ShexpVisibility, log_visibility_sum, shexp_visibility
+from prt_torch.shexp.zonal_sum import zonal_sum
+
+__all__ = ["SHExponential", "ShexpVisibility", "cap_complement_zh", "cos_log_table", "exp_reference",
+           "log_visibility_sum", "log_visibility_table", "ol_table", "sh_exp", "shexp_visibility", "zonal_sum"]
