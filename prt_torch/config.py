@@ -6,6 +6,7 @@ A config has sections owned by the stage that reads them::
     character: {...}              # prt_torch.rig.config.CharacterConfig
     bake: {...}                   # prt_torch.bake.config.BakeConfig
     train: {...}                  # prt_torch.fit.config.TrainConfig
+    scene: {...}                  # prt_torch.scene.config.SceneConfig (optional: ground, characters)
 
 Unknown keys anywhere are errors (``extra="forbid"``); :func:`load_config` turns any validation
 problem into a one-line :class:`prt_torch.PrtError` naming the key.
@@ -26,6 +27,7 @@ from prt_torch.bake.config import BakeConfig
 from prt_torch.errors import PrtError
 from prt_torch.fit.config import TrainConfig
 from prt_torch.rig.config import CharacterConfig
+from prt_torch.scene.config import SceneConfig
 
 
 class RunConfig(BaseModel):
@@ -44,6 +46,7 @@ class RunConfig(BaseModel):
     character: CharacterConfig
     bake: BakeConfig = Field(default_factory=BakeConfig)
     train: TrainConfig = Field(default_factory=TrainConfig)
+    scene: SceneConfig | None = None  # ground plane and characters (prt_torch.scene.config); None: no scene
 
     #: directory of the config file, used to resolve relative paths inside it
     base_dir: Path | None = Field(default=None, exclude=True)

@@ -104,17 +104,35 @@ def run(args: argparse.Namespace) -> int:
     clip = entry.dataset_name
 
     t0 = time.perf_counter()
+    scene = cfg.scene if cfg.scene is not None and (cfg.scene.ground is not None or len(cfg.scene.characters) > 1) \
+        else None
+    if scene is not None:
+        from prt_torch.scene.config import write_run_scene
+
+        write_run_scene(run, scene)  # `prt play --ground` and `prt compare` read the run's scene
+    elif run.scene_json.is_file():
+        run.scene_json.unlink()
     player = Player(run, env=args.env, brdf=args.brdf, window_size=(h, w))
+    scene_metrics: dict[str, Any] | None = None
     try:
         console.print(f"[bold]4/5 compare[/] held-out '{clip}': truth | model | unshadowed -> {run.demo_image}")
         comp = compare_heldout(player, ds, clip, run.demo_image)
+        if scene is not None:
+            console.print("  the scene (floor, cast shadows): whole-scene Embree truth vs the player's composition")
+            scene_metrics = scene_row(run, ds, scene, clip, comp["comparison_row"], cfg.character.fps, args.env,
+                                      args.brdf, (h, w), run.demo_image)
         seconds["compare"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        console.print(f"[bold]5/5 play[/] held-out clip '{clip}' with onnxruntime -> {run.demo_video}")
+        console.print(f"[bold]5/5 play[/] held-out clip '{clip}' with onnxruntime -> {run.demo_video}"
+                      + (" (the scene: floor and cast shadows)" if scene is not None else ""))
         fps = cfg.character.fps
         frames = player.clip_locals(entry.clip, fps)[entry.frame_slice(fps)]
-        res = player.play(Clip(clip, fps, frames), out=run.demo_video, max_frames=args.max_frames,
-                          timings=run.timings_path(run.demo_video))
+        if scene is None:
+            res = player.play(Clip(clip, fps, frames), out=run.demo_video, max_frames=args.max_frames,
+                              timings=run.timings_path(run.demo_video))
+            play_summary = {"frames": res.frames, **res.summary}
+        else:
+            play_summary = play_scene(run, scene, Clip(clip, fps, frames), args, (h, w))
         seconds["play"] = time.perf_counter() - t0
     finally:
         player.close()
@@ -126,16 +144,23 @@ def run(args: argparse.Namespace) -> int:
         "zh_fit_rel_error": player.lighting.rel_error,
         "onnx_parity_rel_error": {k: v["rel_error"] for k, v in meta["parity"].items()},
         "heldout": comp, "fit": fit_metrics,
-        "play": {"frames": res.frames, "compute_fps": res.summary.get("compute_fps"),
-                 "total_fps": res.summary.get("total_fps")},
+        "play": {"frames": play_summary["frames"], "compute_fps": play_summary.get("compute_fps"),
+                 "total_fps": play_summary.get("total_fps")},
         "seconds": seconds,
     }
+    if scene_metrics is not None:
+        metrics["scene"] = scene_metrics
     atomic_write_json(run.demo_metrics, metrics)
     console.print(f"held-out '{clip}': visibility rel. error model {comp['vis_rel_err_model']:.4f} vs "
                   f"unshadowed {comp['vis_rel_err_unshadowed']:.4f}; radiance rel. RMSE model "
                   f"{comp['radiance_rel_rmse_model']:.4f} vs unshadowed {comp['radiance_rel_rmse_unshadowed']:.4f}")
-    console.print(f"playback: {res.summary.get('compute_fps', 0):.0f} frames/s compute path, "
-                  f"{res.summary.get('total_fps', 0):.1f} frames/s with rendering + encoding")
+    if scene_metrics is not None:
+        console.print(f"scene (floor + character) vs whole-scene truth: image PSNR "
+                      f"{scene_metrics['scene_psnr_image']:.1f} dB; "
+                      f"character in scene: visibility rel. error {scene_metrics['vis_rel_err_in_scene']:.4f} "
+                      f"(self-only {scene_metrics['vis_rel_err_self_only']:.4f})")
+    console.print(f"playback: {play_summary.get('compute_fps', 0):.0f} frames/s compute path, "
+                  f"{play_summary.get('total_fps', 0):.1f} frames/s with rendering + encoding")
     console.print(f"wrote {run.demo_video}, {run.demo_image}, {run.demo_metrics} in {seconds['total']:.0f} s")
     return 0
 
@@ -231,3 +256,70 @@ def _label(img: np.ndarray, text: str) -> np.ndarray:
     img = np.ascontiguousarray(img.copy())
     cv2.putText(img, text, (12, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (240, 240, 240), 2, cv2.LINE_AA)
     return img
+
+
+def play_scene(run: Any, scene: Any, clip: Any, args: Any, hw: tuple[int, int]) -> dict[str, Any]:
+    """The held-out video as a scene (:class:`prt_torch.player.scene.ScenePlayer`): floor, cast shadows."""
+    from prt_torch.player.scene import ScenePlayer
+
+    sp = ScenePlayer(run, scene=scene, clip=clip, env=args.env, brdf=args.brdf, window_size=hw)
+    try:
+        return sp.play(out=run.demo_video, max_frames=args.max_frames, timings=run.timings_path(run.demo_video))
+    finally:
+        sp.close()
+
+
+def scene_row(run: Any, ds: Any, scene: Any, clip: str, row: int, fps: float, env: Any, brdf: str,
+              hw: tuple[int, int], out: Path) -> dict[str, Any]:
+    """A third row for the comparison PNG ``out`` at dataset ``row`` (a frame of ``clip``): the scene rendered
+    with whole-scene Embree truth | the player's composition (model x ground half-space, SHEXP floor) | 4x
+    |difference|, one tone map from the truth. Returns that frame's figures."""
+    from prt_torch.eval.shipping import abs_diff_image, image_psnr
+    from prt_torch.player.scene import SceneFrame, ScenePlayer
+    from prt_torch.player.video import write_png
+    from prt_torch.scene.scene import pose_actor
+    from prt_torch.scene.truth import GROUND_BELOW_HORIZON, GROUND_TRUTH_RAYS, SceneTracer
+
+    frame = int(ds.frame_index[row])
+    sp = ScenePlayer(run, scene=scene, clip=clip, fps=fps, env=env, brdf=brdf, window_size=hw)
+    try:
+        model = sp.compute(frame)
+        bake = dict(ds.attrs.get("bake", {}))
+        tracer = SceneTracer(sp.order, int(bake["n_rays"]), float(bake["ray_offset_world"]), int(bake.get("seed", 0)))
+        posed = [pose_actor(a, a.locals(np.array([frame]), sp.fps)) for a in sp.actors]
+        meshes = [(sp.ground.vertices, sp.ground.faces)] + [(p.positions[0], a.character.faces)
+                                                             for a, p in zip(sp.actors, posed, strict=True)]
+        receivers = [(p.positions[0], p.frames[0], pl.bundle.below_horizon)
+                     for p, pl in zip(posed, sp.actor_players, strict=True)]
+        receivers.append((sp.ground.vertices, sp.ground.frames(), GROUND_BELOW_HORIZON,
+                          max(GROUND_TRUTH_RAYS, tracer.n_rays)))
+        tv = tracer.frame(meshes, receivers)
+        truth = SceneFrame(model.states, [pl.shade(st, visibility=v[None], checked=False) for pl, st, v in
+                                          zip(sp.actor_players, model.states, tv[:-1], strict=True)],
+                           [v[None] for v in tv[:-1]], sp.shade_ground(tv[-1]), tv[-1])
+        img_t = sp.render(truth)  # fixes the one tone map from the truth
+        img_m = sp.render(model)
+        from prt_torch.eval.shipping import ImageRenderer
+
+        bg = np.round(np.asarray(ImageRenderer.BACKGROUND) * 255.0)
+        mask = np.abs(img_t.astype(np.float64) - bg).max(-1) > 1.0  # the scene's pixels (not the background)
+        psnr = image_psnr(img_m, img_t, mask) if mask.any() else float("nan")
+        row3 = np.concatenate([_label(img_t, "scene: Embree truth"), _label(img_m, "scene: model + SHEXP floor"),
+                               _label(abs_diff_image(img_m, img_t), "4x |difference|")], axis=1)
+        self_only = sp.actor_players[0].visibility(model.states[0].features)
+    finally:
+        sp.close()
+    import imageio.v2 as iio
+
+    prev = iio.imread(out)
+    write_png(out, np.concatenate([prev, row3], axis=0))
+
+    def rel(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-12))
+
+    return {"frame_index": frame, "characters": len(model.states), "ground_vertices": int(len(tv[-1])),
+            "ground_vis_rel_err": rel(model.ground_visibility, tv[-1]),
+            "ground_radiance_rel_rmse": rel(model.ground_radiance, truth.ground_radiance),
+            "scene_psnr_image": psnr,
+            "vis_rel_err_in_scene": rel(model.visibility[0][0], tv[0]),
+            "vis_rel_err_self_only": rel(self_only[0], tv[0])}

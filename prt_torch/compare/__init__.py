@@ -23,6 +23,10 @@ key                                    meaning
 ``clips``                              their clip names
 ``source``                             held-out frames of the dataset, or a clip posed here
 ``lighting``, ``lighting_path``        the player's lighting (its source, ZH lobes), ``"lobes"``
+``light``                              ``--light``: ``sky`` (the player's sky, default), ``smooth`` (``--env`` or
+                                       the sky without its sun), ``sun`` (that plus a small bright disk:
+                                       ``--sun-size`` degrees, ``--sun-power``); every method and the reference
+                                       see the same light (SH methods its SH, ``sg_vct`` the full-resolution map)
 ``brdfs``                              the shipped RPOs shaded (``["lambert", "phong"]``)
 ``image_frames``                       frames rendered for image PSNR (evenly spaced, strip frame included)
 ``strip_frame``                        ``{index, clip, frame_index, row}`` of the image strip
@@ -34,17 +38,27 @@ key                                    meaning
                                        for learned models, the constant for ``unshadowed``, 0 for ``sh_truth``)
 ``methods.NAME.ms_per_frame``, ``fps`` median milliseconds per frame and its inverse
 ``methods.NAME.runtime``, ``output``   what was timed; ``visibility`` or ``radiance``
+``methods.NAME.*`` (method info)       extra keys of the method (``MethodBase.info``): e.g. ``sg_vct``'s
+                                       ``ms_voxelize_trace_shade``, its grid and cone counts; ``shexp``'s
+                                       sphere count; the precision rows' ``precision``
 ``methods.NAME.*_diffuse|_glossy``     ``radiance_rel_rmse_*``, ``psnr_vertex_*`` per BRDF
 ``methods.NAME.vs_reference``          the same keys against the Monte-Carlo reference (vertex figures over
                                        the vertices facing the camera: the analytic BRDF is 0 behind them)
 ``reference``                          ``{frames, frame_indices, rays_per_estimate, estimates, lighting,
                                        sampling, noise: {same radiance keys: estimate b vs a}, note}``
+``ground``                             only when the run's scene has a floor (``RunDir.scene_json``, the demo's):
+                                       ``{psnr_image, radiance_rel_rmse, vis_rel_err, psnr_vertex, vertices,
+                                       ...}`` of the floor's SHEXP visibility vs whole-scene Embree truth
+                                       (:mod:`prt_torch.compare.ground`)
+``scene``                              with a floor or several characters: ``characters[k].{self_only,
+                                       in_scene}.{vis_rel_err, radiance_rel_rmse}`` vs whole-scene truth,
+                                       ``ms_per_frame``, ``fps`` of the scene's run-time visibility path
 =====================================  ==========================================================
 
 Files (:class:`prt_torch.rundir.RunDir` ``compare_*`` properties): ``compare.json``, ``table.md``,
 ``index.html``, ``strip.png`` (truth | each method | reference, row 2: 4x |difference|, at the frame with the
-largest truth vs unshadowed radiance gap), ``psnr_vs_ms.png``, and ``<kind>.visibility.onnx`` for learned
-kinds that are not the exported one.
+largest truth vs unshadowed radiance gap), ``psnr_vs_ms.png``, ``ground.png`` (with a floor), and
+``<kind>.visibility.onnx`` for learned kinds that are not the exported one.
 """
 
 from __future__ import annotations

@@ -133,7 +133,8 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
                 max_frames: int | None = None, env: str | Path | None = None, dataset: str | Path | None = None,
                 image_frames: int = 8, reference_frames: int = 4, reference_rays: int = 512, threads: int = 2,
                 log: Callable[[str], None] | None = None, progress: bool = False, motion: str | Path | None = None,
-                motion_fps: float | None = None) -> dict[str, Any]:
+                motion_fps: float | None = None, scene: Any = None, light: str = "sky", sun_size: float | None = None,
+                sun_power: float | None = None) -> dict[str, Any]:
     """Compare methods on a run (see :mod:`prt_torch.compare`); writes the compare directory; returns the JSON.
 
     Args:
@@ -150,6 +151,11 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         log: one-line progress notes; progress: rich progress bars.
         motion: a motion file retargeted onto the character (:mod:`prt_torch.rig.retarget`) and compared as the
             clip ``motion:<file stem>`` (``motion_fps``: its rate, default the dataset's).
+        light: ``"sky"`` (the player's lighting: ``env`` or the procedural sky + sun), ``"smooth"`` (``env`` or the
+            sky without its sun) or ``"sun"`` (that plus a sun disk of ``sun_size`` degrees and ``sun_power``):
+            :func:`prt_torch.compare.reference.light_spec`; every method and the reference see the same light.
+        scene: a :class:`~prt_torch.scene.config.SceneConfig` (default: the run's recorded scene); with a floor or
+            a second character, ``compare.json`` gains ``ground`` and ``scene`` (:mod:`prt_torch.compare.ground`).
     """
     from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.eval.evaluate import _Bar
@@ -168,11 +174,20 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         note(report.summary())
     names = resolve(methods, ctx)
     fs = clip_frames(ctx, clip, max_frames) if clip else heldout_frames(ctx, max_frames)
-    lighting = load_lighting(env, ctx.order)
+    from prt_torch.compare.reference import light_spec, sky_spec, spec_reference, spec_sh
+
+    if light == "sky":
+        spec = sky_spec(env)
+        lighting = load_lighting(env, ctx.order)
+    else:
+        from prt_torch.player.lighting import lighting_from_sh
+
+        spec = light_spec(light, env, *(() if sun_size is None else (sun_size,)), sun_power=sun_power)
+        lighting = lighting_from_sh(spec_sh(spec, ctx.order), 3, source=spec.source)
     rpos = shipping_rpos(ctx.order, ctx.run)
     brdfs = {n: builtin_brdf(n) for n in rpos}
     camera = player_camera(ctx.character)
-    req = RadianceRequest(lighting, dict(rpos), brdfs, camera.eye)
+    req = RadianceRequest(lighting, dict(rpos), brdfs, camera.eye, extra={"light_spec": spec})
     insts: dict[str, MethodBase] = {}
     for n in names:
         m = METHODS[n]()
@@ -215,7 +230,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
     strip: dict[str, Any] = {}
     faces = np.asarray(ctx.character.faces)
     offset = float(ctx.bake["ray_offset_world"])
-    light_ref = reference_light(env)
+    light_ref = reference_light(env) if light == "sky" else spec_reference(spec)
     bar = _Bar(progress, len(all_idx), "images and reference")
     renderer = ImageRenderer(ctx.character.rest_vertices, faces, camera)
     try:
@@ -271,7 +286,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         "n_vertices": ctx.n_vertices, "sh_order": ctx.order,
         "lighting": f"{lighting.source}: {len(lighting.dirs)} ZH lobes of the windowed order-{ctx.order} SH "
                     f"(the player's lighting, lobes path)",
-        "lighting_path": "lobes", "brdfs": list(rpos),
+        "lighting_path": "lobes", "light": light, "brdfs": list(rpos),
         "image_frames": int(len(img_idx)),
         "strip_frame": {"index": strip_f, "clip": fs.clips[strip_f], "frame_index": int(fs.frame_index[strip_f]),
                         "row": int(fs.rows[strip_f])},
@@ -292,6 +307,10 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
             "note": "noise = estimate b vs estimate a; the mean of the two has about 6 dB less noise (PSNR ~6 dB "
                     "higher) than this pair, so vs_reference PSNRs near that ceiling are noise-limited",
         }
+    from prt_torch.compare.ground import compare_scene
+
+    result.update(compare_scene(ctx, fs, lighting, rpos, scene=scene, image_frames=image_frames, threads=threads,
+                                log=note))
     _write_outputs(ctx.run, result, strip, names)
     return result
 
@@ -354,6 +373,9 @@ def table_markdown(result: dict[str, Any]) -> str:
             lines.append(f"| {n} | " + " | ".join(_fmt(m["vs_reference"].get(c), c) for c in cols) + " |")
         lines.append("| (reference noise: estimate b vs a) | " + " | ".join(_fmt(ref["noise"].get(c), c)
                                                                           for c in cols) + " |")
+    from prt_torch.compare.ground import scene_markdown
+
+    lines += scene_markdown(result)
     return "\n".join(lines) + "\n"
 
 
@@ -381,6 +403,8 @@ def _write_outputs(run: RunDir, result: dict[str, Any], strip: dict[str, Any], n
                      f"truth vs unshadowed gap; {STRIP_BRDF}, one tone map from sh_truth; row 2: 4x |difference|"))
     plot_scatter(result, run.compare_scatter)
     figs.append((run.compare_scatter.name, "image PSNR (diffuse) vs milliseconds per frame"))
+    if "ground" in result:
+        figs.append((run.compare_ground.name, "the ground's cast shadow: whole-scene Embree truth | SHEXP | 4x diff"))
     body = html.escape(md)
     imgs_html = "".join(f"<h3>{html.escape(c)}</h3><img src='{html.escape(f)}' style='max-width:100%'>"
                         for f, c in figs)

@@ -1,0 +1,276 @@
+"""``prt compare``'s cast-shadow section: the run's scene (a floor, several characters) against whole-scene truth.
+
+Whenever the run records a scene with a floor or more than one character (``RunDir.scene_json``, written by
+``prt demo`` from the config's ``scene:`` section; or a :class:`~prt_torch.scene.config.SceneConfig` passed in),
+the compared frames are replayed as that scene: the run's character shows each compared frame (its clip and
+frame index), other characters their own clips at the same scene time, all placed by the scene
+(:mod:`prt_torch.scene.scene`). Per frame:
+
+* **truth**: Embree over ground + every posed character (:class:`prt_torch.scene.truth.SceneTracer`, the
+  bake's ``trace_frame``, ray count, offset and seed), for the ground vertices and each character's vertices;
+* **ground**: SHEXP of all characters' posed blocker spheres (the run's ``shexp.onnx``,
+  :class:`prt_torch.scene.occluders.ShexpGraph`) at the ground vertices;
+* **each character**: ``self_only`` = its learned self-visibility (its run's ``visibility.onnx``), and
+  ``in_scene`` = that composed with the ground half-space and the other characters' SHEXP
+  (:class:`prt_torch.scene.compose.Composer`, the player's rule).
+
+Scores (``compare.json``): ``ground.{vis_rel_err, radiance_rel_rmse, psnr_image}`` (ground vertices; radiance
+= the shipping path's diffuse RPO times the ground albedo; image PSNR over the ground's pixels rendered alone
+from the scene camera, one tone map from the truth) and ``scene.characters[k].{self_only, in_scene}.
+{vis_rel_err, radiance_rel_rmse}`` (both shipped BRDFs pooled), plus ``scene.ms_per_frame`` / ``fps``: the
+median run-time visibility path of a whole scene frame (every character's learned model, SHEXP ground and
+others, composition; onnxruntime + numpy, no shading). ``compare/ground.png``: the ground at the strip frame,
+truth | SHEXP | 4x difference.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prt_torch import metrics as M
+from prt_torch.errors import PrtError, check
+from prt_torch.eval.shipping import (
+    DIFFUSE,
+    Camera,
+    ImageRenderer,
+    ImageStats,
+    RadianceStats,
+    ShippingShader,
+    abs_diff_image,
+    evenly_spaced,
+    image_strip,
+    write_png,
+)
+from prt_torch.rundir import RunDir
+from prt_torch.scene.compose import Composer
+from prt_torch.scene.config import SceneConfig, run_scene
+from prt_torch.scene.occluders import ShexpGraph
+from prt_torch.scene.scene import (
+    Actor,
+    check_separated,
+    placement_matrix,
+    pose_actor,
+    scene_ground,
+    spheres_above,
+)
+from prt_torch.scene.truth import GROUND_BELOW_HORIZON, GROUND_TRUTH_RAYS, SceneTracer
+
+
+def wants_scene(scene: SceneConfig | None) -> bool:
+    """Whether a scene adds anything to the compare (a floor or a second character)."""
+    return scene is not None and (scene.ground is not None or len(scene.characters) > 1)
+
+
+def _actors(ctx: Any, scene: SceneConfig, first_clip: str, fps: float, threads: int) -> tuple[list[Actor], list[Any]]:
+    """Actors of the scene and, per actor, its run's :class:`prt_torch.player.bundle.RunBundle` (visibility graph,
+    frame data, ``below_horizon``)."""
+    from prt_torch.player.bundle import RunBundle
+    from prt_torch.player.scene import load_spheres
+    from prt_torch.rig.clip import Clip
+
+    actors, bundles = [], []
+    cache: dict[Path, Any] = {}
+    for k, e in enumerate(scene.entries()):
+        path = (ctx.run.path if e.run is None else Path(e.run)).resolve()
+        if path not in cache:
+            cache[path] = RunBundle(path, threads=threads, graphs=("visibility",))
+        b = cache[path]
+        ch = ctx.character if path == ctx.run.path.resolve() else b.character
+        name = first_clip if k == 0 else (e.clip or first_clip)
+        c = ch.clip(name)
+        c = c.resample(fps) if c.fps != fps else c
+        actors.append(Actor(ch, Clip(c.name, fps, np.asarray(c.local)), placement_matrix(e.offset, e.yaw_deg),
+                            e.time_offset, b.cluster, b.cluster_axis, b.cluster_bone, load_spheres(b.run),
+                            name=f"character {k} ({path.name}, {c.name})"))
+        bundles.append(b)
+    return actors, bundles
+
+
+def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene: SceneConfig | None = None,
+                  image_frames: int = 8, threads: int = 2, window_hw: tuple[int, int] = (480, 640),
+                  log: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """The cast-shadow section of ``compare.json`` (module docstring): ``{"ground": ..., "scene": ...}``, or
+    ``{}`` when the run has no scene with a floor or a second character.
+
+    Args:
+        ctx: the :class:`~prt_torch.compare.methods.CompareRun`; fs: its :class:`~prt_torch.compare.methods.FrameSet`.
+        lighting: the player's :class:`~prt_torch.player.lighting.Lighting`; rpos: the shipped RPOs.
+        scene: the scene (default: the run's recorded one).
+        image_frames: frames rendered for the ground image PSNR (evenly spaced).
+    """
+    from prt_torch.player.player import camera_eye, camera_target
+    from prt_torch.player.scene import shexp_graph_path
+    from prt_torch.rig.features import pose_features
+
+    note = log or (lambda s: None)
+    scene = scene if scene is not None else run_scene(ctx.run)
+    if not wants_scene(scene):
+        return {}
+    run: RunDir = ctx.run
+    gp = shexp_graph_path(run)
+    if gp is None:
+        raise PrtError(f"{run.path}: its scene needs the shexp graph and blocker spheres: run `prt export {run.path}`")
+    fps = float((ctx.dataset.attrs.get("config") or {}).get("character", {}).get("fps") or
+                ctx.character.clip(fs.clips[0]).fps)
+    actors, bundles = _actors(ctx, scene, fs.clips[0], fps, threads)
+    n_f = fs.n_frames
+    ground = scene_ground(scene.ground, actors, fps, int(max(fs.frame_index) + 1)) if scene.ground else None
+    shexp = ShexpGraph(gp, ctx.order, threads=threads)
+    composers = [Composer(ctx.order, b.below_horizon) for b in bundles]
+    bake = ctx.bake
+    tracer = SceneTracer(ctx.order, int(bake["n_rays"]), float(bake["ray_offset_world"]), int(bake.get("seed", 0)))
+    rest = np.concatenate([a.rest_vertices() for a in actors]).astype(np.float32)
+    center, radius = camera_target(rest)
+    camera = Camera(np.asarray(camera_eye(center, radius), np.float64), np.asarray(center, np.float64),
+                    tuple(window_hw))
+    names = [a.name for a in actors]
+    k_n = len(actors)
+    truth_c: list[list[np.ndarray]] = [[] for _ in actors]
+    insc: list[list[np.ndarray]] = [[] for _ in actors]
+    selfv: list[list[np.ndarray]] = [[] for _ in actors]
+    posed_c: list[list[Any]] = [[] for _ in actors]
+    g_truth, g_shexp = [], []
+    secs = []
+    note(f"scene: {k_n} character(s){', ground ' + str(ground.n_vertices) + ' vertices' if ground else ''}; "
+         f"whole-scene Embree truth on {n_f} frames")
+    for f in range(n_f):
+        t_scene = np.array([int(fs.frame_index[f])])
+        locs = []
+        for k, a in enumerate(actors):
+            if k == 0:
+                c = ctx.character.clip(fs.clips[f])
+                c = c.resample(fps) if c.fps != fps else c
+                locs.append(a.place(np.asarray(c.local)[t_scene]))
+            else:
+                locs.append(a.locals(t_scene, fps))
+        posed = [pose_actor(a, loc) for a, loc in zip(actors, locs, strict=True)]
+        spheres = [a.spheres for a in actors]
+        from prt_torch.blockers import pose_spheres
+
+        centers = [pose_spheres(s, p.skin) for s, p in zip(spheres, posed, strict=True)]  # (1, S_k, 3)
+        radii = [np.asarray(s.radius, np.float32) for s in spheres]
+        if k_n > 1:
+            check_separated([c[0] for c in centers], radii, names, f)
+        # -- the run-time path (timed): learned self-visibility, SHEXP, composition
+        t0 = time.perf_counter()
+        feats = [np.ascontiguousarray(pose_features(loc, a.character.bind_local, a.character.parents), np.float32)
+                 for a, loc in zip(actors, locs, strict=True)]
+        sv = [b.graphs["visibility"].run_unchecked({"pose": x})[0] for b, x in zip(bundles, feats, strict=True)]
+        out = []
+        for k in range(k_n):
+            others = None
+            if k_n > 1:
+                oc = np.concatenate([c for j, c in enumerate(centers) if j != k], axis=1)
+                orad = np.concatenate([r for j, r in enumerate(radii) if j != k])[None]
+                others = shexp(posed[k].positions, posed[k].frames, oc, orad)
+            out.append(composers[k].in_scene(sv[k], posed[k].frames, ground=ground is not None, others=others))
+        if ground is not None:
+            gc, gr = spheres_above(np.concatenate(centers, axis=1), np.concatenate(radii)[None], ground.height)
+            gv = shexp(ground.vertices[None], ground.frames((1,)), gc, gr)[0]
+        secs.append(time.perf_counter() - t0)
+        # -- the truth
+        meshes = ([(ground.vertices, ground.faces)] if ground is not None else []) + \
+            [(p.positions[0], a.character.faces) for a, p in zip(actors, posed, strict=True)]
+        receivers = [(p.positions[0], p.frames[0], b.below_horizon) for p, b in zip(posed, bundles, strict=True)]
+        if ground is not None:
+            receivers.append((ground.vertices, ground.frames(), GROUND_BELOW_HORIZON,
+                          max(GROUND_TRUTH_RAYS, tracer.n_rays)))
+        tv = tracer.frame(meshes, receivers)
+        for k in range(k_n):
+            truth_c[k].append(tv[k])
+            insc[k].append(out[k][0])
+            selfv[k].append(sv[k][0])
+            posed_c[k].append(posed[k])
+        if ground is not None:
+            g_truth.append(tv[-1])
+            g_shexp.append(gv)
+    result: dict[str, Any] = {}
+    ms = float(np.median(secs) * 1e3)
+    chars = []
+    for k, a in enumerate(actors):
+        t = np.stack(truth_c[k])
+        pos = np.concatenate([p.positions for p in posed_c[k]])
+        frm = np.concatenate([p.frames for p in posed_c[k]])
+        vis = {"truth": t, "self_only": np.stack(selfv[k]), "in_scene": np.stack(insc[k])}
+        shader = ShippingShader({"light": lighting}, rpos, camera.eye, paths=("lobes",))
+        stats = {n: RadianceStats() for n in ("self_only", "in_scene")}
+        for _, res in shader.shade(vis, frm, pos):
+            for b in rpos:
+                d = res[("light", b, "lobes")]
+                for n in stats:
+                    stats[n].add(d[n], d["truth"])
+        chars.append({"name": a.name, "clip": a.clip.name if k else "the compared frames",
+                      **{n: {"vis_rel_err": M.vis_rel_err(vis[n], t), "radiance_rel_rmse": stats[n].rel_rmse}
+                         for n in stats}})
+    result["scene"] = {
+        "characters": chars, "frames": n_f, "ground": ground is not None,
+        "ms_per_frame": ms, "fps": 1e3 / ms if ms > 0 else float("inf"),
+        "timing": "median ms of a whole scene frame's run-time visibility path (every character's visibility "
+                  "graph, the SHEXP graph for the ground and for the other characters, the composition; no shading)",
+        "truth": "Embree over ground + every posed character (the bake's trace_frame, rays, offset, seed)",
+        "self_only": "the learned self-visibility alone vs the whole-scene truth",
+        "in_scene": "learned self-visibility x ground half-space x SHEXP of the other characters (SH products)",
+    }
+    if ground is not None:
+        result["ground"] = _ground_scores(ground, np.stack(g_shexp), np.stack(g_truth), lighting, rpos, camera,
+                                          image_frames, run)
+    return result
+
+
+def _ground_scores(ground: Any, shexp_v: np.ndarray, truth: np.ndarray, lighting: Any, rpos: dict[str, Any],
+                   camera: Camera, image_frames: int, run: RunDir) -> dict[str, Any]:
+    """Ground figures (diffuse RPO x albedo) and ``compare/ground.png``."""
+    check(DIFFUSE in rpos, f"the ground is shaded with the diffuse RPO {DIFFUSE!r}, not among {list(rpos)}")
+    n_f = truth.shape[0]
+    frames = ground.frames((n_f,))
+    pos = np.broadcast_to(ground.vertices, (n_f, ground.n_vertices, 3))
+    shader = ShippingShader({"light": lighting}, {DIFFUSE: rpos[DIFFUSE]}, camera.eye, paths=("lobes",))
+    rad = shader.shade_all({"truth": truth, "shexp": shexp_v}, frames, pos)[("light", DIFFUSE, "lobes")]
+    rad = {n: r * ground.albedo for n, r in rad.items()}
+    stats = RadianceStats()
+    stats.add(rad["shexp"], rad["truth"])
+    # the image strip frame: the largest shadow (truth darkest relative to its mean)
+    strip_f = int(np.argmax(np.ptp(rad["truth"].sum(-1), axis=1)))
+    img_idx = evenly_spaced(n_f, max(image_frames, 1), must=[strip_f])
+    img = ImageStats()
+    with ImageRenderer(ground.vertices, ground.faces, camera) as r:
+        mask = r.mask(ground.vertices)
+        for f in img_idx:
+            fi = r.frame_images(ground.vertices, {"truth": rad["truth"][f], "shexp": rad["shexp"][f]}, "truth",
+                                mask=mask)
+            img.add(*fi.sse["shexp"])
+            if f == strip_f:
+                strip = image_strip([fi.images["truth"], fi.images["shexp"]], ["ground: Embree truth", "ground: SHEXP"],
+                                    [None, abs_diff_image(fi.images["shexp"], fi.images["truth"])],
+                                    ["", "4x |SHEXP - truth|"])
+    run.compare_dir.mkdir(parents=True, exist_ok=True)
+    write_png(run.compare_ground, strip)
+    return {"psnr_image": img.psnr, "radiance_rel_rmse": stats.rel_rmse, "vis_rel_err": M.vis_rel_err(shexp_v, truth),
+            "psnr_vertex": stats.psnr, "vertices": ground.n_vertices, "frames": n_f, "image_frames": int(len(img_idx)),
+            "strip_frame": strip_f, "albedo": [float(x) for x in ground.albedo],
+            "method": "SHEXP (the run's SHEXP graph) of every character's posed blocker spheres, diffuse RPO x albedo",
+            "image": "the ground's pixels rendered alone from the scene camera, one tone map from the truth"}
+
+
+def scene_markdown(result: dict[str, Any]) -> list[str]:
+    """Markdown lines for the cast-shadow section of ``table.md`` (empty without one)."""
+    sc = result.get("scene")
+    if not sc:
+        return []
+    lines = ["", f"Cast shadows ({sc['frames']} frames, whole-scene Embree truth; scene visibility path "
+             f"{sc['ms_per_frame']:.3g} ms per frame, {sc['fps']:.3g} frames/s):", "",
+             "| receiver | vis_rel_err | radiance_rel_rmse | psnr_image |", "| --- | ---: | ---: | ---: |"]
+    g = result.get("ground")
+    if g:
+        p = g.get("psnr_image")
+        lines.append(f"| ground (SHEXP) | {g['vis_rel_err']:.4f} | {g['radiance_rel_rmse']:.4f} | "
+                     f"{'-' if p is None else f'{p:.2f}'} |")
+    for c in sc["characters"]:
+        for n in ("self_only", "in_scene"):
+            lines.append(f"| {c['name']}: {n} | {c[n]['vis_rel_err']:.4f} | {c[n]['radiance_rel_rmse']:.4f} | - |")
+    return lines
