@@ -185,7 +185,7 @@ def test_kill_export_at_every_write(tiny_run: Path, tmp_path: Path, capsys: pyte
         run = _copy(tiny_run, tmp_path / f"run{k}")
         return k, tmp_path, ["export", str(run), *args]
 
-    n = 9  # stages.json (key dropped), frames, 1 RPO, 3 graphs, export.json, stages.json (+1 spare)
+    n = 11  # stages.json (key dropped), frames, 1 RPO, 3 graphs, blockers, shexp graph, export.json, stages.json (+1)
     results = _run_all([job(k) for k in range(n + 1)])
     ref = results.pop(0)
     assert ref[0] == 0, ref[1][-2000:]

@@ -1,60 +1,80 @@
-"""``prt bench play [RUN]``: frames/s of the run-time path, its steps, and side-by-side references.
+"""``prt bench play [RUN]``: the run-time path against its roofline, measured side by side in one process.
 
-Measured in one run on the exported run (default ``runs/demo``: built-in character ~11.7k vertices,
-order 4, MLP model) with an 8-term RPO (``phong``):
+On the exported run (default ``runs/demo``: built-in character ~11.7k vertices, order 4, MLP model) with an
+8-term RPO (``phong``), everything timed interleaved frame by frame, in ``--repeats`` blocks, medians reported
+(the machine is shared: only side-by-side ratios and medians mean anything):
 
-* per-frame path (numpy FK + LBS + frames + pose features -> ORT -> radiance), fused graph, split
-  graphs (visibility then shading) and the fused graph on a player with 1 onnxruntime thread
-  (``fused_1thread``) and the ``overlap`` player (visibility on a worker thread during the posing),
-  interleaved frame by frame; median over ``--frames``; the fastest is ``fps``;
-  then the fused graph with spinning ORT threads (``fused_spin``, a second player) in
-  alternating blocks against the non-spinning one (``fused_blocks``);
-* (a) ray tracing the same frames' visibility with Embree (``prt_torch.bake.trace.trace_frame``, the
-  bake's per-frame path, ``--rays`` 512 by default as in the bake config) and shading it: ``speedup_vs_raytrace``;
-* (b) the model's bytes (ONNX initializers + RPO tensors) over the machine's measured copy bandwidth
-  (large ``numpy.copyto``): ``bandwidth_fraction = stream time / frame time`` (1.0 = the frame costs
-  no more than streaming the weights once);
-* batched playback of 32 characters per call: character-frames/s;
-* a floor: the shading's multiply-adds at numpy's measured float32 GEMM rate (2 threads) plus the
-  stream time of (b).
+* the per-frame path (numpy FK + LBS + frames + features, then ONE fused ORT call) - ``fps``; and the split
+  graphs of the same frames for the per-step split (``visibility``, ``shading``);
+* the visibility model at every weight precision (float32, float16, int8: exported from the run's model into a
+  temporary directory), its bytes and time side by side;
+* the ROOFLINE: per step the bytes that must move (weights read once, inputs read once, outputs written once) and
+  the FLOPs that must run, the machine's copy bandwidth (``numpy.copyto`` of a buffer the size of the model:
+  read + write traffic) and float32 GEMM rate (the shading's RPO GEMM shape, best of 1 and ``--threads`` BLAS
+  threads), both measured in this process before and after the timings (the best of them is used), give the
+  step's lower bound ``max(bytes / bandwidth, flops / GEMM rate)``; the frame's bound is the sum over its
+  sequential steps (posing + fused); ``roofline_fraction = frame bound / measured frame time``;
+* crowds: ``N`` characters (different clips, staggered) per call of every graph, ``N`` in ``--crowd``:
+  character-frames/s and the crowd's bound (weights once, per-character bytes and FLOPs ``N`` times);
+* Embree ray tracing of the same frames' visibility (the bake's per-frame path, ``--rays``) + shading:
+  ``speedup_vs_raytrace``;
+* ``--scaling``: frame time and bound against vertex count (the built-in character at densities 0.25 .. 4, ~3k ..
+  47k vertices, with a synthetic model of the run's structure: its MLP, per-cluster bases of its sizes, random
+  values) and against crowd size; plotted to ``--plot``.
+
+JSON keys (``--json``): ``fps``, ``roofline_fraction``, ``steps: {NAME: {ms, bound_ms, bytes, flops, bound_by}}``,
+``batched_character_fps``, ``speedup_vs_raytrace``, ``bytes_model``, ``crowd``, ``precisions``, ``machine``
+(``copy_bandwidth_gb_s``, ``gemm_gflop_s``), ``scaling`` (with ``--scaling``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-HELP = "Player frames/s (fused vs split), per-step times, speed-up vs Embree ray tracing, bandwidth bound, B=32."
+HELP = ("Player frames/s against a roofline measured in the same run (per step bytes/FLOPs), precisions, crowds, "
+        "speed-up vs Embree; --scaling plots cost vs vertex count and crowd size.")
+
+#: built-in character densities of ``--scaling`` (~3k, 6k, 12k, 24k, 47k vertices)
+SCALING_DENSITIES = (0.25, 0.5, 1.0, 2.0, 4.0)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", nargs="?", default="runs/demo", help="exported run (default runs/demo; `prt demo`)")
-    parser.add_argument("--frames", type=int, default=200, help="timed frames per mode (default 200)")
-    parser.add_argument("--warmup", type=int, default=20)
+    parser.add_argument("--frames", type=int, default=100, help="timed frames per repeat (default 100)")
+    parser.add_argument("--repeats", type=int, default=3, help="interleaved blocks; medians over all (default 3)")
+    parser.add_argument("--warmup", type=int, default=10)
     parser.add_argument("--brdf", default="phong", help="RPO of the run (default phong, 8 terms)")
-    parser.add_argument("--raytrace-frames", type=int, default=3, help="frames ray-traced for the baseline")
+    parser.add_argument("--raytrace-frames", type=int, default=2, help="frames ray-traced for the baseline")
     parser.add_argument("--rays", type=int, default=512,
                         help="rays per vertex of the ray-traced baseline (default 512, the bake config default; "
                              "0: the run's own bake n_rays)")
-    parser.add_argument("--batch", type=int, default=32, help="characters per call for the batched figure")
+    parser.add_argument("--crowd", default="1,8,32,128", help="crowd sizes, comma-separated (default 1,8,32,128)")
+    parser.add_argument("--batch", type=int, default=32, help="the crowd size reported as batched_character_fps")
+    parser.add_argument("--crowd-chunk", type=int, default=4,
+                        help="also time crowds in fused calls of this many characters, alongside one call per "
+                             "crowd (0: skip)")
+    parser.add_argument("--precisions", default="fp32,fp16,int8",
+                        help="visibility-model precisions timed side by side ('' to skip; needs torch)")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
-    parser.add_argument("--no-spinning", action="store_true",
-                        help="skip the 'fused_spin' blocks (onnxruntime threads busy-waiting between calls)")
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"],
+                        help="onnxruntime device (cuda: onnxruntime-gpu and a GPU)")
+    parser.add_argument("--scaling", action="store_true", help="also time vertex counts ~3k..47k and plot")
+    parser.add_argument("--plot", default="docs/play_scaling.png", help="scaling figure (PNG) with --scaling")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def _median_ms(v: list[float]) -> float:
-    return float(np.median(v) * 1e3)
-
-
+# -- the machine ------------------------------------------------------------------------------------
 def copy_bandwidth(n_bytes: int = 1 << 28, repeats: int = 5) -> float:
-    """Best-of-``repeats`` bytes/s of ``numpy.copyto`` between two ``n_bytes`` float32 buffers."""
-    a = np.ones(n_bytes // 4, dtype=np.float32)
+    """Best-of-``repeats`` memory traffic in bytes/s of ``numpy.copyto`` between two ``n_bytes`` float32 buffers
+    (read + write: ``2 n_bytes`` per copy, STREAM's accounting)."""
+    a = np.ones(max(n_bytes, 1 << 16) // 4, dtype=np.float32)
     b = np.empty_like(a)
     np.copyto(b, a)
     best = float("inf")
@@ -62,7 +82,7 @@ def copy_bandwidth(n_bytes: int = 1 << 28, repeats: int = 5) -> float:
         t0 = time.perf_counter()
         np.copyto(b, a)
         best = min(best, time.perf_counter() - t0)
-    return a.nbytes / best
+    return 2.0 * a.nbytes / best
 
 
 def gemm_rate(n_vertices: int, n_coeffs: int, n_terms: int, threads: int, repeats: int = 25) -> float:
@@ -87,127 +107,305 @@ def gemm_rate(n_vertices: int, n_coeffs: int, n_terms: int, threads: int, repeat
     return 2.0 * a.shape[0] * a.shape[1] * n_vertices / best
 
 
-def frame_floor(n_vertices: int, order: int, n_terms: int, n_lobes: int, stream_s: float,
-                gemm_flops: float) -> dict[str, float]:
-    """A lower bound on the model's frame time: the shading's multiply-adds at the measured GEMM rate plus
-    streaming the model's bytes once (they do not overlap in the sequential graph).
-
-    Per vertex the shading needs ``k C^2`` MACs for ``sum_b a_b M_b v`` (dense RPO), ``P C`` per lobe for
-    the lobe SH (``P`` monomials of degree ``< order``), ``P k`` for the view factors and ``3 K C`` for
-    the lighting dot products; everything else is elementwise.
-    """
+# -- the roofline model ------------------------------------------------------------------------------
+def shading_flops(n_vertices: int, order: int, n_terms: int, n_lobes: int) -> float:
+    """FLOPs of RPO shading per frame: per vertex ``k C^2`` MACs for ``sum_b a_b M_b v`` (dense RPO), ``P C`` per
+    lobe for the lobe SH (``P`` monomials of degree ``< order``), ``P k`` for the view factors and ``3 K C`` for the
+    lighting dot products; elementwise work is not counted."""
     c = order * order
     p = order * (order + 1) * (order + 2) // 6
-    macs = n_vertices * (n_terms * c * c + n_terms * c + n_lobes * p * c + p * n_terms + 3 * n_lobes * c)
-    shading_s = 2.0 * macs / gemm_flops
-    return {"shading_gflop": 2e-9 * macs, "shading_ms": shading_s * 1e3, "stream_ms": stream_s * 1e3,
-            "floor_ms": (shading_s + stream_s) * 1e3}
+    return 2.0 * n_vertices * (n_terms * c * c + n_lobes * p * c + p * n_terms + 3 * n_lobes * c)
+
+
+def step_costs(n_vertices: int, order: int, n_terms: int, n_lobes: int, n_joints: int, model_bytes: int,
+               model_macs: int, crowd: int = 1) -> dict[str, dict[str, float]]:
+    """Bytes that must move and FLOPs that must run per step for ``crowd`` characters (float32 data):
+
+    * ``posing``: read dense skin weights ``(J, V)``, rest positions/normals, cluster labels (int64); write
+      positions, normals, frames ``(9, V)``, view directions - per character; FLOPs: the ``12 x J`` blend GEMM;
+    * ``visibility``: the model's weights once per call, the ``(V, C)`` output per character; ``2 * macs``;
+    * ``shading``: read visibility, frames, view directions, write radiance per character; :func:`shading_flops`;
+    * ``fused``: visibility + shading without the visibility round trip.
+    """
+    v, c, n = n_vertices, order * order, crowd
+    pose_bytes = n * v * (4 * n_joints + 4 * 6 + 8 + 4 * 18)
+    pose_flops = n * 2.0 * 12 * n_joints * v
+    vis_out = n * v * c * 4
+    shade_io = n * v * 4 * (9 + 3 + 3)
+    sh_flops = n * shading_flops(v, order, n_terms, n_lobes)
+    model_flops = n * 2.0 * model_macs
+    return {"posing": {"bytes": pose_bytes, "flops": pose_flops},
+            "visibility": {"bytes": model_bytes + vis_out, "flops": model_flops},
+            "shading": {"bytes": vis_out + shade_io, "flops": sh_flops},
+            "fused": {"bytes": model_bytes + shade_io, "flops": model_flops + sh_flops}}
+
+
+def bound(cost: dict[str, float], bandwidth: float, gemm_flops: float) -> dict[str, Any]:
+    """``{bound_ms, memory_ms, compute_ms, bound_by}``: the roofline lower bound of a step."""
+    mem = cost["bytes"] / bandwidth
+    comp = cost["flops"] / gemm_flops
+    return {"bound_ms": max(mem, comp) * 1e3, "memory_ms": mem * 1e3, "compute_ms": comp * 1e3,
+            "bound_by": "memory" if mem >= comp else "compute"}
+
+
+def _median_ms(v: list[float]) -> float:
+    return float(np.median(v) * 1e3) if v else float("nan")
+
+
+def _parse_sizes(text: str, name: str, hi: int) -> list[int]:
+    from prt_torch.errors import PrtError
+
+    try:
+        sizes = sorted({int(x) for x in text.split(",") if x.strip()})
+    except ValueError:
+        raise PrtError(f"{name}: expected comma-separated integers, got {text!r}") from None
+    if not sizes or sizes[0] < 1 or sizes[-1] > hi:
+        raise PrtError(f"{name}: sizes must be 1..{hi}, got {text!r}")
+    return sizes
 
 
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
-    from rich.table import Table
 
     from prt_torch import limits
     from prt_torch.commands import _validate as V
     from prt_torch.errors import PrtError, check
-    from prt_torch.export.onnx_file import initializer_bytes
+    from prt_torch.export.graphs import PRECISIONS
+    from prt_torch.export.onnx_file import initializer_bytes, weight_macs
     from prt_torch.player import Player
-    from prt_torch.player.timing import FrameTimer
+    from prt_torch.rundir import RunDir
 
     limits.check_int(args.frames, "--frames", 5, limits.MAX_FRAMES)
+    limits.check_int(args.repeats, "--repeats", 1, limits.MAX_REPEATS)
     limits.check_int(args.warmup, "--warmup", 1, limits.MAX_REPEATS)
-    limits.check_int(args.raytrace_frames, "--raytrace-frames", 1, limits.MAX_REPEATS)
+    limits.check_int(args.raytrace_frames, "--raytrace-frames", 0, limits.MAX_REPEATS)
     limits.check_int(args.rays, "--rays", 0, limits.MAX_RAYS)
     limits.check_int(args.batch, "--batch", 1, limits.MAX_BATCH)
     limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
+    limits.check_int(args.crowd_chunk, "--crowd-chunk", 0, limits.MAX_BATCH)
+    crowds = _parse_sizes(args.crowd, "--crowd", limits.MAX_BATCH)
+    if args.batch not in crowds:
+        crowds = sorted({*crowds, args.batch})
+    precisions = [p.strip() for p in args.precisions.split(",") if p.strip()]
+    for p in precisions:
+        check(p in PRECISIONS, f"--precisions: unknown precision {p!r} (expected {list(PRECISIONS)})")
     if not args.brdf.strip():
         raise PrtError("--brdf: empty name")
     V.input_dir(args.run, "run directory")
+    if args.scaling:
+        V.output_file(args.plot, "--plot")
     console = Console(stderr=True)
     run_dir = Path(args.run)
-    check(args.frames >= 5 and args.warmup >= 1, "--frames must be >= 5 and --warmup >= 1")
-    player = Player(run_dir, brdf=args.brdf, graph="fused", threads=args.threads)
+    run = RunDir(run_dir)
+    kw = {"brdf": args.brdf, "threads": args.threads, "device": args.device}
+    player = Player(run_dir, graph="fused", **kw)
+    split = Player(run_dir, graph="split", **kw)
     meta = player.bundle.meta
     clips = list(player.character.clips)
     check(bool(clips), f"{run_dir}: the character has no clips")
     clip = max(clips, key=lambda c: player.character.clip(c).num_frames)
     locals_ = player.clip_locals(clip)
     n_clip = len(locals_)
+    order, n_v = player.order, player.bundle.n_vertices
+    n_terms, n_lobes = int(player.rpo.M.shape[0]), int(player.lighting.dirs.shape[0])
+    n_joints = player.character.num_joints
 
-    # -- per-frame path, fused vs split, interleaved frame by frame ---------------------------------
-    steps: dict[str, dict[str, list[float]]] = {"fused": {"pose": [], "fused": [], "total": []},
-                                                "split": {"pose": [], "visibility": [], "shading": [], "total": []}}
+    # -- machine rates (before) ----------------------------------------------------------------------
+    fused_path = run.graph_path("fused")
+    model_bytes = initializer_bytes(fused_path) + player.rpo.M.nbytes + player.rpo.w.nbytes \
+        + player.lighting.coeffs.nbytes
+    macs = weight_macs(fused_path)
+    ws = max(model_bytes, 1 << 22)
+    with console.status("measuring copy bandwidth and GEMM rate ..."):
+        bws = [copy_bandwidth(ws, 20)]
+        gemms = [gemm_rate(n_v, order * order, n_terms, args.threads)]
+        bw_dram = copy_bandwidth(1 << 28, 3)
 
-    def frame(pl: Player, mode: str, loc: np.ndarray) -> dict[str, float]:
-        if mode == "overlap":
-            timer = FrameTimer()
-            pl.compute_overlapped(loc, timer)
-            return {k: v[0] for k, v in timer.steps.items()}
-        pl.graph = "split" if mode == "split" else "fused"
-        t0 = time.perf_counter()
-        state = pl.pose(loc)
-        t1 = time.perf_counter()
-        if mode != "split":
-            pl.shade(state, checked=False)
-            return {"pose": t1 - t0, "fused": time.perf_counter() - t1}
-        vis = pl.visibility(state.features, checked=False)
-        t2 = time.perf_counter()
-        pl.shade(state, visibility=vis, checked=False)
-        return {"pose": t1 - t0, "visibility": t2 - t1, "shading": time.perf_counter() - t2}
+    # -- precision variants of the visibility model (side by side) ----------------------------------------
+    from prt_torch.runtime.session import OrtGraph
 
-    def record(mode: str, parts: dict[str, float]) -> None:
-        for k, v in parts.items():
-            steps[mode][k].append(v)
-        steps[mode]["total"].append(sum(parts.values()))
+    tmp = tempfile.TemporaryDirectory(prefix="prt_bench_play_")
+    prec_graphs: dict[str, OrtGraph] = {}
+    if precisions:
+        with console.status(f"exporting the visibility model at {', '.join(precisions)} ..."):
+            prec_graphs = _precision_graphs(run, precisions, Path(tmp.name), args.threads, args.device)
 
-    # the same fused graph with ONE onnxruntime thread (no thread wake-ups per node; on a busy 2-core
-    # machine the second core is often not free anyway)
-    modes: dict[str, Player] = {"fused": player, "split": player}
-    if args.threads != 1:
-        modes["fused_1thread"] = Player(run_dir, brdf=args.brdf, graph="fused", threads=1)
-        steps["fused_1thread"] = {"pose": [], "fused": [], "total": []}
-    # visibility on a worker thread during the numpy posing (pays off only when the second core is free)
-    modes["overlap"] = Player(run_dir, brdf=args.brdf, graph="overlap", threads=args.threads)
-    steps["overlap"] = {"pose": [], "visibility": [], "shading": [], "total": []}
-    with console.status(f"timing {args.frames} frames per mode on '{clip}' ..."):
-        for i in range(args.warmup + args.frames):
-            loc = locals_[i % n_clip:i % n_clip + 1]
-            for mode, pl in modes.items():
-                parts = frame(pl, mode, loc)
-                if i >= args.warmup:
-                    record(mode, parts)
-    for pl in modes.values():
-        if pl is not player:
-            pl.close()
-    # spinning ORT threads busy-wait between calls and would slow any mode interleaved with them: timed in
-    # alternating blocks of frames against the (non-spinning) fused player instead
-    if not args.no_spinning:
-        spin = Player(run_dir, brdf=args.brdf, graph="fused", threads=args.threads, spinning=True)
-        steps["fused_spin"] = {"pose": [], "fused": [], "total": []}
-        steps["fused_blocks"] = {"pose": [], "fused": [], "total": []}
-        block = max(5, args.frames // 4)
-        with console.status("timing fused with spinning onnxruntime threads (alternating blocks) ..."):
-            for rep in range(4):
-                for mode, pl in (("fused_blocks", player), ("fused_spin", spin)):
-                    for i in range(args.warmup // 2 + block):
-                        j = (rep * block + i) % n_clip
-                        parts = frame(pl, mode, locals_[j:j + 1])
-                        if i >= args.warmup // 2:
-                            record(mode, parts)
-        spin.close()
-    player.graph = "fused"
-    med = {m: {k: _median_ms(v) for k, v in s.items()} for m, s in steps.items()}
-    best_mode = min(modes, key=lambda m: med[m]["total"])  # interleaved modes (not the blocks)
-    frame_s = med[best_mode]["total"] / 1e3
-    fps = 1.0 / frame_s
+    # -- per-frame path: fused frames, split frames, precision variants, interleaved ------------------------
+    times: dict[str, list[float]] = {k: [] for k in ("posing", "fused", "frame", "split_posing", "visibility",
+                                                      "shading", *(f"visibility_{p}" for p in prec_graphs))}
+    blocks: list[float] = []
+    with console.status(f"timing {args.repeats} x {args.frames} frames on '{clip}' ..."):
+        for rep in range(args.repeats):
+            block: list[float] = []
+            for i in range(args.warmup + args.frames):
+                j = (rep * 37 + i) % n_clip
+                loc = locals_[j:j + 1]
+                t0 = time.perf_counter()
+                state = player.pose(loc)
+                t1 = time.perf_counter()
+                player.shade(state, checked=False)
+                t2 = time.perf_counter()
+                s2 = split.pose(loc)
+                t3 = time.perf_counter()
+                vis = split.visibility(s2.features, checked=False)
+                t4 = time.perf_counter()
+                split.shade(s2, visibility=vis, checked=False)
+                t5 = time.perf_counter()
+                pt = {}
+                for p, g in prec_graphs.items():
+                    ta = time.perf_counter()
+                    g.run_unchecked({"pose": s2.features})
+                    pt[p] = time.perf_counter() - ta
+                if i < args.warmup:
+                    continue
+                for k, v in (("posing", t1 - t0), ("fused", t2 - t1), ("frame", t2 - t0), ("split_posing", t3 - t2),
+                             ("visibility", t4 - t3), ("shading", t5 - t4)):
+                    times[k].append(v)
+                for p, v in pt.items():
+                    times[f"visibility_{p}"].append(v)
+                block.append(t2 - t0)
+            blocks.append(_median_ms(block))
+    frame_ms = _median_ms(times["frame"])
+    fps = 1e3 / frame_ms
 
-    # -- (a) Embree ray tracing of the same frames + shading -----------------------------------
+    # -- crowds: N characters per call of every graph, each crowd call next to a single-character frame ------
+    # (blocks per N: one batch size at a time, as a game plays it; the single frames give a same-moment baseline)
+    crowd_t: dict[int, list[float]] = {n: [] for n in crowds}
+    crowd_single: dict[int, list[float]] = {n: [] for n in crowds}
+    crowd_chunked: dict[int, list[float]] = {n: [] for n in crowds}
+    chunk = args.crowd_chunk
+    crowd_clips = [clips[i % len(clips)] for i in range(max(crowds))]
+    with console.status(f"crowds of {crowds} characters ..."):
+        for rep in range(args.repeats):
+            for n in crowds:
+                n_iter = max(3, min(args.frames // 5, 4 * args.frames // n))
+                for i in range(2 + n_iter):
+                    loc = player.crowd_locals(crowd_clips[:n], rep * 11 + i, stagger=3)
+                    t0 = time.perf_counter()
+                    state = player.pose(loc)
+                    player.shade(state, checked=False)
+                    t1 = time.perf_counter()
+                    state = player.pose(loc[:1])
+                    player.shade(state, checked=False)
+                    t2 = time.perf_counter()
+                    if chunk and n > chunk:
+                        player.crowd_chunk = chunk
+                        state = player.pose(loc)
+                        player.shade(state, checked=False)
+                        player.crowd_chunk = None
+                    if i >= 2:
+                        crowd_t[n].append(t1 - t0)
+                        crowd_single[n].append(t2 - t1)
+                        if chunk and n > chunk:
+                            crowd_chunked[n].append(time.perf_counter() - t2)
+
+    # -- Embree ray tracing of the same frames + shading ------------------------------------------------
+    raytrace_ms = speedup = float("nan")
+    n_rays = 0
+    if args.raytrace_frames:
+        raytrace_ms, n_rays = _raytrace(player, split, run, locals_, args, console)
+        speedup = raytrace_ms / frame_ms
+
+    # -- machine rates (after); the best of before/after bounds the steps --------------------------------
+    bws.append(copy_bandwidth(ws, 20))
+    gemms.append(gemm_rate(n_v, order * order, n_terms, args.threads))
+    bw, gemm = max(bws), max(gemms)
+
+    costs = step_costs(n_v, order, n_terms, n_lobes, n_joints, model_bytes, macs)
+    vis_bytes = initializer_bytes(run.graph_path("visibility"))
+    costs["visibility"]["bytes"] += vis_bytes - model_bytes  # the split visibility graph's own weights
+    costs["frame"] = {k: costs["posing"][k] + costs["fused"][k] for k in ("bytes", "flops")}
+    steps: dict[str, dict[str, Any]] = {}
+    for name, key in (("posing", "posing"), ("visibility", "visibility"), ("shading", "shading"),
+                      ("fused", "fused"), ("frame", "frame")):
+        b = bound(costs[name], bw, gemm)
+        ms = _median_ms(times[key])
+        steps[name] = {"ms": ms, **b, "fraction": b["bound_ms"] / ms, **costs[name]}
+    # the frame's bound: its sequential steps' bounds added (posing, then the fused call)
+    steps["frame"]["bound_ms"] = steps["posing"]["bound_ms"] + steps["fused"]["bound_ms"]
+    steps["frame"]["fraction"] = steps["frame"]["bound_ms"] / steps["frame"]["ms"]
+    roofline_fraction = steps["frame"]["fraction"]
+
+    precision_rows = {}
+    for p, g in prec_graphs.items():
+        pb = initializer_bytes(g.path)
+        c = {"bytes": pb + n_v * order * order * 4, "flops": 2.0 * weight_macs(g.path)}
+        ms = _median_ms(times[f"visibility_{p}"])
+        precision_rows[p] = {"ms": ms, "bytes_model": int(pb), **bound(c, bw, gemm)}
+        precision_rows[p]["fraction"] = precision_rows[p]["bound_ms"] / ms
+
+    crowd_rows = {}
+    for n in crowds:
+        c = step_costs(n_v, order, n_terms, n_lobes, n_joints, model_bytes, macs, crowd=n)
+        b_ms = bound(c["posing"], bw, gemm)["bound_ms"] + bound(c["fused"], bw, gemm)["bound_ms"]
+        ms = _median_ms(crowd_t[n])
+        single = _median_ms(crowd_single[n])
+        crowd_rows[str(n)] = {"call_ms": ms, "character_fps": n * 1e3 / ms, "bound_ms": b_ms,
+                              "bound_character_fps": n * 1e3 / b_ms, "fraction": b_ms / ms,
+                              "single_frame_ms_same_moment": single, "speedup_vs_single": n * single / ms}
+        if crowd_chunked[n]:
+            cm = _median_ms(crowd_chunked[n])
+            crowd_rows[str(n)].update({"chunk": chunk, "chunked_call_ms": cm, "chunked_character_fps": n * 1e3 / cm})
+
+    out: dict[str, Any] = {
+        "run": str(run_dir), "clip": clip, "n_vertices": n_v, "sh_order": order, "model_kind": meta["model_kind"],
+        "precision": player.bundle.precision, "vertex_order": meta.get("fused_vertex_order", "original"),
+        "brdf": player.rpo.name, "brdf_terms": n_terms, "n_lobes": n_lobes, "threads": args.threads,
+        "device": args.device, "frames": args.frames, "repeats": args.repeats,
+        "fps": fps, "frame_ms": frame_ms, "frame_ms_per_repeat": blocks,
+        "roofline_fraction": roofline_fraction, "steps": steps,
+        "bytes_model": int(model_bytes), "model_macs": int(macs),
+        "machine": {"copy_bandwidth_gb_s": bw / 1e9, "copy_bandwidth_samples_gb_s": [x / 1e9 for x in bws],
+                    "copy_bandwidth_dram_gb_s": bw_dram / 1e9, "copy_working_set_bytes": int(ws),
+                    "gemm_gflop_s": gemm / 1e9, "gemm_samples_gflop_s": [x / 1e9 for x in gemms]},
+        "precisions": precision_rows, "crowd": crowd_rows,
+        "batched_character_fps": crowd_rows[str(args.batch)]["character_fps"], "batch": args.batch,
+        "raytrace_ms": raytrace_ms, "raytrace_n_rays": n_rays, "speedup_vs_raytrace": speedup,
+    }
+    if args.scaling:
+        out["scaling"] = _scaling(run, player, args, bw, gemm, console, tmp.name)
+        _plot(out, Path(args.plot))
+        out["scaling"]["plot"] = str(args.plot)
+    player.close()
+    split.close()
+    tmp.cleanup()
+    if args.json:
+        print(json.dumps(out, indent=2, sort_keys=True))
+        return 0
+    _print_tables(out)
+    return 0
+
+
+def _precision_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, device: str) -> dict[str, Any]:
+    """The run's visibility model exported at each precision into ``tmp`` (torch): ``{precision: OrtGraph}``."""
+    import torch
+
+    from prt_torch.export.graphs import VisibilityGraph
+    from prt_torch.export.onnx_file import export_onnx
+    from prt_torch.export.run import BASIS_PATTERN, _per_cluster
+    from prt_torch.models.visibility import load_model
+    from prt_torch.runtime.session import OrtGraph
+
+    kind = run.export_meta().get("model_kind")
+    model = load_model(run, kind)
+    if not _per_cluster(model):
+        return {}
+    out = {}
+    for p in precisions:
+        g = VisibilityGraph(model, cluster_sorted=True, precision=p).eval()
+        path = tmp / f"visibility_{p}.onnx"
+        export_onnx(g, [torch.zeros(1, model.n_features)], path, ("pose",), ("visibility",),
+                    {"pose": {0: "B"}, "visibility": {0: "B"}}, int8_weights=BASIS_PATTERN if p == "int8" else None)
+        out[p] = OrtGraph(path, threads=threads, device=device)
+    return out
+
+
+def _raytrace(player: Any, split: Any, run: Any, locals_: np.ndarray, args: argparse.Namespace,
+              console: Any) -> tuple[float, int]:
+    """Median ms of Embree ray tracing + shading a frame (the bake's per-frame path) and the rays per vertex."""
     from prt_torch.bake.embree import ray_offset
     from prt_torch.bake.trace import RaySet, trace_frame
-    from prt_torch.rundir import RunDir
 
-    run = RunDir(run_dir)
     ds_attrs = run.dataset().attrs if run.dataset_path.exists() else {}
     n_rays = int(args.rays or ds_attrs.get("n_rays") or 128)
     rel_offset = float((ds_attrs.get("bake") or {}).get("ray_offset", 1e-4))
@@ -215,85 +413,186 @@ def run(args: argparse.Namespace) -> int:
     offset = ray_offset(player.character.rest_vertices, rel_offset)
     faces = player.character.faces
     rt: list[float] = []
-    rt_model: list[float] = []
     with console.status(f"ray-tracing {args.raytrace_frames} frames with Embree ({n_rays} rays/vertex) ..."):
         for j in range(args.raytrace_frames):
-            loc = locals_[(j * 7) % n_clip:(j * 7) % n_clip + 1]
+            loc = locals_[(j * 7) % len(locals_):(j * 7) % len(locals_) + 1]
             t0 = time.perf_counter()
-            state = player.pose(loc)
+            state = split.pose(loc)
             res = trace_frame(state.positions_vx3(0), state.frames_vx33()[0], faces, rays, offset)
-            player.shade(state, visibility=res.visibility[None], checked=False)
+            split.shade(state, visibility=res.visibility[None], checked=False)
             rt.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            state = player.pose(loc)
-            player.shade(state, checked=False)
-            rt_model.append(time.perf_counter() - t0)
-    raytrace_s = float(np.median(rt))
-    speedup = raytrace_s / frame_s  # vs the median model frame of the timed loop above
-    speedup_paired = raytrace_s / float(np.median(rt_model))  # vs the model on the same few frames, cold
+    return _median_ms(rt), n_rays
 
-    # -- (b) bandwidth bound --------------------------------------------------------------------
-    with console.status("measuring copy bandwidth and GEMM throughput ..."):
-        bw = copy_bandwidth()
-        gemm_flops = gemm_rate(player.bundle.n_vertices, player.order ** 2, int(player.rpo.M.shape[0]),
-                               args.threads)
-    if best_mode not in ("split", "overlap"):
-        model_bytes = initializer_bytes(run.graph_path("fused"))
-    else:
-        model_bytes = initializer_bytes(run.graph_path("visibility")) + initializer_bytes(run.graph_path("shading"))
-    model_bytes += player.rpo.M.nbytes + player.rpo.w.nbytes + player.lighting.coeffs.nbytes
-    stream_s = model_bytes / bw
-    bandwidth_fraction = stream_s / frame_s
-    floor = frame_floor(player.bundle.n_vertices, player.order, int(player.rpo.M.shape[0]),
-                        player.lighting.dirs.shape[0], stream_s, gemm_flops)
 
-    # -- batched: B characters per call ----------------------------------------------------------
-    b = args.batch
-    idx = np.arange(b) * 3 % n_clip
-    batch_locals = locals_[idx]
-    bt: list[float] = []
-    with console.status(f"batched playback, B={b} ..."):
-        for i in range(3 + max(5, args.frames // 20)):
-            t0 = time.perf_counter()
-            state = player.pose(batch_locals)
-            player.shade(state, checked=False)
-            if i >= 3:
-                bt.append(time.perf_counter() - t0)
-    batch_s = float(np.median(bt))
-    player.close()
+def synthetic_model(template: Any, character: Any, seed: int = 0) -> Any:
+    """A :class:`~prt_torch.models.visibility.VisibilityModel` for ``character`` with ``template``'s structure
+    (input projection, regressor, the number of clusters and components per cluster) and random per-cluster
+    bases: vertices split into equal clusters along the skin's dominant joint - a timing stand-in only."""
+    import torch
 
-    out: dict[str, Any] = {
-        "run": str(run_dir), "clip": clip, "n_vertices": player.bundle.n_vertices, "sh_order": player.order,
-        "model_kind": meta["model_kind"], "brdf": player.rpo.name, "brdf_terms": int(player.rpo.M.shape[0]),
-        "threads": args.threads, "frames": args.frames,
-        "fps": fps, "frame_ms": frame_s * 1e3, "best_graph": best_mode,
-        "fps_fused": 1e3 / med["fused"]["total"], "fps_split": 1e3 / med["split"]["total"],
-        "steps_ms": med,
-        "raytrace_ms": raytrace_s * 1e3, "raytrace_n_rays": n_rays, "speedup_vs_raytrace": speedup,
-        "speedup_vs_raytrace_paired_cold": speedup_paired,
-        "copy_bandwidth_gb_s": bw / 1e9, "model_bytes": int(model_bytes), "stream_ms": stream_s * 1e3,
-        "bandwidth_fraction": bandwidth_fraction,
-        "batch": b, "batched_call_ms": batch_s * 1e3, "batched_character_fps": b / batch_s,
-        "gemm_gflop_s": gemm_flops / 1e9, "floor": floor,
-    }
-    if args.json:
-        print(json.dumps(out, indent=2, sort_keys=True))
-        return 0
-    t = Table(title=f"prt bench play: {run_dir} ({out['n_vertices']} vertices, order {out['sh_order']}, "
-                    f"{out['model_kind']}, {out['brdf']} k={out['brdf_terms']}, {args.threads} ORT threads)")
-    t.add_column("measure")
-    t.add_column("value", justify="right")
-    for m in med:
-        parts = ", ".join(f"{k} {v:.3f}" for k, v in med[m].items() if k != "total")
-        t.add_row(f"{m} graph: ms/frame ({parts})", f"{med[m]['total']:.3f} ms = {1e3 / med[m]['total']:.0f} fps")
-    t.add_row(f"Embree ray trace ({n_rays} rays/vertex) + shading, per frame", f"{raytrace_s * 1e3:.0f} ms")
-    t.add_row("speed-up of the model path over ray tracing (median frame; paired cold frames)",
-              f"{speedup:.0f}x ({speedup_paired:.0f}x)")
-    t.add_row(f"model bytes {model_bytes / 1e6:.2f} MB at copy bandwidth {bw / 1e9:.1f} GB/s",
-              f"{stream_s * 1e3:.3f} ms")
-    t.add_row("bandwidth fraction (stream time / frame time)", f"{bandwidth_fraction:.3f}")
-    t.add_row(f"GEMM ({floor['shading_gflop']:.3f} GFLOP shading) at {gemm_flops / 1e9:.0f} GFLOP/s + stream "
-              f"(floor, posing excluded)", f"{floor['floor_ms']:.3f} ms = {1e3 / floor['floor_ms']:.0f} fps")
-    t.add_row(f"batched B={b}: per call", f"{batch_s * 1e3:.1f} ms = {b / batch_s:.0f} character-frames/s")
-    Console().print(t)  # the result table on stdout (progress went to stderr)
-    return 0
+    from prt_torch.models.projection import OutputUnprojection
+    from prt_torch.models.visibility import VisibilityModel
+
+    out = template.out
+    g_count, k_max = int(out.basis.shape[0]), int(out.basis.shape[1])
+    k_used = [int((out.basis[g].abs().sum(1) > 0).sum()) for g in range(g_count)]
+    v, c = character.num_vertices, int(out.n_coeffs)
+    dom = np.argmax(character.dense_weights, axis=1)
+    order = np.lexsort((np.arange(v), dom))
+    labels = np.empty(v, np.int64)
+    labels[order] = np.minimum(np.arange(v) * g_count // v, g_count - 1)
+    counts = np.bincount(labels, minlength=g_count)
+    l_max = int(counts.max()) * c
+    rng = np.random.default_rng(seed)
+    basis = np.zeros((g_count, k_max, l_max), np.float32)
+    gather = np.empty((v, c), np.int64)
+    for g in range(g_count):
+        verts = np.flatnonzero(labels == g)
+        basis[g, :k_used[g], :verts.size * c] = rng.standard_normal((k_used[g], verts.size * c)) * 0.05
+        gather[verts] = g * l_max + np.arange(verts.size * c).reshape(verts.size, c)
+    mean = rng.standard_normal(v * c).astype(np.float32) * 0.1
+    unproj = OutputUnprojection(torch.from_numpy(basis), torch.from_numpy(gather.reshape(-1).astype(np.int32)),
+                                torch.from_numpy(mean), v, c)
+    return VisibilityModel(template.kind, template.inp, template.regressor, unproj), labels
+
+
+def _scaling(run: Any, player: Any, args: argparse.Namespace, bw: float, gemm: float, console: Any,
+             tmp: str) -> dict[str, Any]:
+    """Frame time (pose + fused call) and its bound for the built-in character at :data:`SCALING_DENSITIES`."""
+    import torch
+
+    from prt_torch.export.graphs import FUSED_INPUTS, FusedGraph
+    from prt_torch.export.onnx_file import export_onnx, initializer_bytes, weight_macs
+    from prt_torch.export.run import BASIS_PATTERN
+    from prt_torch.models.visibility import load_model
+    from prt_torch.player.posing import Poser
+    from prt_torch.rig.builtin import make_character
+    from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones
+    from prt_torch.runtime.session import OrtGraph
+
+    template = load_model(run, run.export_meta().get("model_kind"))
+    prec = player.bundle.precision
+    order, n_terms = player.order, int(player.rpo.M.shape[0])
+    cases = []
+    for d in SCALING_DENSITIES:
+        with console.status(f"scaling: built-in character at density {d} ..."):
+            ch = make_character(density=d)
+            model, labels = synthetic_model(template, ch)
+            fused = FusedGraph(model, order, n_terms, cluster_sorted=True, precision=prec).eval()
+            path = Path(tmp) / f"fused_{d}.onnx"
+            v = ch.num_vertices
+            ex = {"pose": torch.zeros(1, model.n_features), "frames": torch.zeros(1, 9, v),
+                  "view_dirs": torch.zeros(1, 3, v), "lobe_dirs": torch.from_numpy(player._lobe_dirs),
+                  "lobe_coeffs": torch.from_numpy(player.lighting.coeffs), "rpo_M": torch.from_numpy(player.rpo.M),
+                  "rpo_w": torch.from_numpy(player.rpo.w), "rpo_tint": torch.from_numpy(player.rpo.tint)}
+            b = {0: "B"}
+            export_onnx(fused, [ex[k] for k in FUSED_INPUTS], path, FUSED_INPUTS, ("radiance",),
+                        {"pose": b, "frames": b, "view_dirs": b, "radiance": b},
+                        int8_weights=BASIS_PATTERN if prec == "int8" else None)
+            poser = Poser(ch, labels, cluster_axes(ch.rest_vertices, labels), cluster_bones(ch.dense_weights, labels),
+                          order=fused.vertex_order)
+            cases.append({"density": d, "ch": ch, "graph": OrtGraph(path, threads=args.threads, device=args.device),
+                          "poser": poser, "locs": np.asarray(ch.clip("walk").local), "path": path,
+                          "feeds": {k: ex[k].numpy() for k in FUSED_INPUTS[3:]}, "frame": [], "posing": []})
+    n_iter = max(10, args.frames // 3)
+    with console.status(f"scaling: timing {len(cases)} vertex counts interleaved ..."):
+        for _rep in range(args.repeats):
+            for i in range(3 + n_iter):
+                for c in cases:
+                    locs, poser = c["locs"], c["poser"]
+                    t0 = time.perf_counter()
+                    st = poser(locs[i % len(locs):i % len(locs) + 1], player.eye)
+                    t1 = time.perf_counter()
+                    c["graph"].run_unchecked({"pose": st.features, "frames": st.in_order("frames", poser.order),
+                                              "view_dirs": st.in_order("view_dirs", poser.order), **c["feeds"]})
+                    if i >= 3:
+                        c["frame"].append(time.perf_counter() - t0)
+                        c["posing"].append(t1 - t0)
+    rows = []
+    for c in cases:
+        ch, path = c["ch"], c["path"]
+        v = ch.num_vertices
+        mb = initializer_bytes(path) + player.rpo.M.nbytes + player.rpo.w.nbytes
+        cost = step_costs(v, order, n_terms, len(player._lobe_dirs), ch.num_joints, mb, weight_macs(path))
+        b_ms = bound(cost["posing"], bw, gemm)["bound_ms"] + bound(cost["fused"], bw, gemm)["bound_ms"]
+        ms = _median_ms(c["frame"])
+        rows.append({"density": c["density"], "n_vertices": v, "frame_ms": ms, "posing_ms": _median_ms(c["posing"]),
+                     "bound_ms": b_ms, "fraction": b_ms / ms, "bytes_model": int(mb)})
+    return {"precision": prec, "vertices": rows}
+
+
+def _plot(out: dict[str, Any], path: Path) -> None:
+    """Two panels: frame time and bound vs vertex count; per-character time and bound vs crowd size."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from prt_torch.io import atomic_path
+
+    rows = out["scaling"]["vertices"]
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    v = [r["n_vertices"] for r in rows]
+    ax[0].loglog(v, [r["frame_ms"] for r in rows], "o-", label="measured frame (pose + fused)")
+    ax[0].loglog(v, [r["posing_ms"] for r in rows], "s--", label="measured posing")
+    ax[0].loglog(v, [r["bound_ms"] for r in rows], "k:", label="roofline bound")
+    ax[0].set_xticks(v, [f"{x / 1000:.1f}k" for x in v], minor=False)
+    ax[0].set_xticks([], minor=True)
+    ax[0].set_xlabel("vertices")
+    ax[0].set_ylabel("ms per frame")
+    ax[0].set_title(f"one character ({out['scaling']['precision']} bases)")
+    ax[0].grid(True, which="both", alpha=0.3)
+    ax[0].legend()
+    crowd = out["crowd"]
+    n = [int(k) for k in crowd]
+    ax[1].loglog(n, [crowd[k]["call_ms"] / int(k) for k in crowd], "o-", label="measured, per character")
+    ax[1].loglog(n, [crowd[k]["bound_ms"] / int(k) for k in crowd], "k:", label="roofline bound, per character")
+    ax[1].set_xticks(n, [str(x) for x in n], minor=False)
+    ax[1].set_xticks([], minor=True)
+    ax[1].set_xlabel("characters per call (crowd)")
+    ax[1].set_ylabel("ms per character-frame")
+    ax[1].set_title(f"crowd, {out['n_vertices']} vertices each")
+    ax[1].grid(True, which="both", alpha=0.3)
+    ax[1].legend()
+    fig.suptitle(f"prt bench play: {out['threads']} ORT threads, {out['device']}, "
+                 f"{out['machine']['copy_bandwidth_gb_s']:.0f} GB/s, {out['machine']['gemm_gflop_s']:.0f} GFLOP/s")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def _print_tables(out: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    m = out["machine"]
+    t = Table(title=f"prt bench play: {out['run']} ({out['n_vertices']} vertices, order {out['sh_order']}, "
+                    f"{out['model_kind']} {out['precision']}, {out['brdf']} k={out['brdf_terms']}, {out['threads']} "
+                    f"ORT threads, {out['device']}); copy {m['copy_bandwidth_gb_s']:.0f} GB/s, GEMM "
+                    f"{m['gemm_gflop_s']:.0f} GFLOP/s (this run)")
+    for col in ("step", "measured ms", "bound ms", "fraction", "bound by", "MB", "MFLOP"):
+        t.add_column(col, justify="right" if col != "step" else "left")
+    for name, s in out["steps"].items():
+        t.add_row(name, f"{s['ms']:.3f}", f"{s['bound_ms']:.3f}", f"{s['fraction']:.2f}", s["bound_by"],
+                  f"{s['bytes'] / 1e6:.2f}", f"{s['flops'] / 1e6:.1f}")
+    t.add_row("fps (frame = posing + fused)", f"{out['fps']:.0f}", "", f"{out['roofline_fraction']:.2f}", "", "", "")
+    for p, r in out["precisions"].items():
+        t.add_row(f"visibility graph {p}", f"{r['ms']:.3f}", f"{r['bound_ms']:.3f}", f"{r['fraction']:.2f}",
+                  r["bound_by"], f"{r['bytes_model'] / 1e6:.2f}", "")
+    for n, r in out["crowd"].items():
+        t.add_row(f"crowd {n}: per call ({r['character_fps']:.0f} character-frames/s, {r['speedup_vs_single']:.2f}x "
+                  f"single frames timed alongside)", f"{r['call_ms']:.2f}",
+                  f"{r['bound_ms']:.2f}", f"{r['fraction']:.2f}", "", "", "")
+        if "chunked_call_ms" in r:
+            t.add_row(f"crowd {n} in calls of {r['chunk']} ({r['chunked_character_fps']:.0f} character-frames/s)",
+                      f"{r['chunked_call_ms']:.2f}", f"{r['bound_ms']:.2f}",
+                      f"{r['bound_ms'] / r['chunked_call_ms']:.2f}", "", "", "")
+    t.add_row(f"Embree ray trace ({out['raytrace_n_rays']} rays/vertex) + shading; speed-up",
+              f"{out['raytrace_ms']:.0f}", "", f"{out['speedup_vs_raytrace']:.0f}x", "", "", "")
+    if "scaling" in out:
+        for r in out["scaling"]["vertices"]:
+            t.add_row(f"scaling: {r['n_vertices']} vertices (pose + fused)", f"{r['frame_ms']:.3f}",
+                      f"{r['bound_ms']:.3f}", f"{r['fraction']:.2f}", "", f"{r['bytes_model'] / 1e6:.2f}", "")
+    Console().print(t)

@@ -17,6 +17,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--opset", type=int, default=17, help="ONNX opset (17..20)")
     parser.add_argument("--exporter", default="torchscript", choices=["torchscript", "dynamo"])
     parser.add_argument("--force", action="store_true", help="re-export even if up to date")
+    parser.add_argument("--precision", default=None, choices=["fp32", "fp16", "int8"],
+                        help="weight precision of the model's output bases (default int8: prt compare rows "
+                             "learned_<kind>_fp32/_fp16 measure the cost)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
     V.input_dir(run_dir, "run directory")
     with console.status(f"exporting {run_dir} ..."):
         meta = export_run(run_dir, kind=args.kind, brdfs=brdfs, n_terms=args.terms, opset=args.opset,
-                          exporter=args.exporter, force=args.force, console=console)
+                          exporter=args.exporter, force=args.force, console=console,
+                          **({"precision": args.precision} if args.precision else {}))
     par = ", ".join(f"{k} {v['rel_error']:.1e}" for k, v in meta["parity"].items())
     console.print(f"exported {run_dir}: V={meta['n_vertices']} order={meta['sh_order']} "
                   f"BRDFs={','.join(meta['brdfs'])}; parity vs torch (rel.): {par}")

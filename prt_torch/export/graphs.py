@@ -127,8 +127,16 @@ class ShadingGraph(nn.Module):
     MatMul with a small constant-size matrix or an elementwise product of contiguous V-long rows.
     """
 
-    def __init__(self, order: int, n_terms: int = 8) -> None:
+    #: the forms of the RPO step ``zz = sum_b a_b M_b v`` (measured side by side; the outer form is the faster):
+    #: ``"outer"``: one GEMM ``Mcat (C, k*C) @ (a (x) v) (k*C, V)``; ``"per_term"``: ``Mstack (k*C, C) @ v`` then
+    #: the ``a_b``-weighted sum over terms (same FLOPs, a second ``(k*C, V)`` pass)
+    RPO_FORMS = ("outer", "per_term")
+
+    def __init__(self, order: int, n_terms: int = 8, rpo_form: str = "outer") -> None:
         super().__init__()
+        if rpo_form not in self.RPO_FORMS:
+            raise ValueError(f"unknown RPO form {rpo_form!r}: expected one of {self.RPO_FORMS}")
+        self.rpo_form = rpo_form
         self.order = order
         self.max_terms = n_terms
         self.sh = SHPolynomial(order)
@@ -159,14 +167,67 @@ class ShadingGraph(nn.Module):
         y_lobes = self.sh(s_loc).reshape(b, c, n_lobes, v)  # (B, C, K, V)
         a = (rpo_w @ self.sh.coeffs_t) @ self.sh.monomials(wo)  # (B, k, V): view factors w_b . y(wo)
         # zz = sum_b a_b M_b v = Mcat @ (a (x) v): one elementwise outer product, one GEMM
-        m_cat = rpo_M.permute(1, 0, 2).reshape(c, k * c)  # (C, k*C): [i, b*C + j] = M[b, i, j]
-        u = (a.unsqueeze(2) * vis_t.unsqueeze(1)).reshape(b, k * c, v)  # (B, k*C, V): a_b v_j
-        zz = m_cat @ u  # (B, C, V)
+        if self.rpo_form == "per_term":
+            t = (rpo_M.reshape(k * c, c) @ vis_t).reshape(b, k, c, v)  # (B, k, C, V): M_b v
+            zz = (t * a.unsqueeze(2)).sum(1)  # (B, C, V)
+        else:
+            m_cat = rpo_M.permute(1, 0, 2).reshape(c, k * c)  # (C, k*C): [i, b*C + j] = M[b, i, j]
+            u = (a.unsqueeze(2) * vis_t.unsqueeze(1)).reshape(b, k * c, v)  # (B, k*C, V): a_b v_j
+            zz = m_cat @ u  # (B, C, V)
         g = lobe_coeffs.index_select(1, self.band)  # (K, C, 3)
         g_t = g.permute(2, 1, 0).reshape(3, c * n_lobes)  # (3, C*K)
         p = (y_lobes * zz.unsqueeze(2)).reshape(b, c * n_lobes, v)  # (B, C*K, V)
         out = g_t @ p  # (B, 3, V)
         return (out * rpo_tint.reshape(1, 3, 1)).transpose(1, 2)  # (B, V, 3)
+
+
+#: weight precisions of the exported output bases (``prt export --precision``): float32, float16 (weights and the
+#: GEMM in half precision: half the bytes where the execution provider has half-precision kernels - CUDA; the
+#: CPU provider widens them back at load), int8 (per-output-column block scales, onnxruntime's MatMulNBits)
+PRECISIONS = ("fp32", "fp16", "int8")
+
+
+def int8_block_size(k: int) -> int:
+    """The MatMulNBits block length (a power of two >= 16) for a ``k``-row basis: the one that stores the fewest
+    bytes per output column, ``ceil(k / b) * (b + 4)`` (int8 entries plus one float32 scale per block)."""
+    return min((16, 32, 64, 128), key=lambda b: (-(-k // b) * (b + 4), b))
+
+
+def int8_quantize(w: np.ndarray, block: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """Symmetric int8 quantisation of a ``(K, N)`` basis with one scale per output column and ``block`` rows.
+
+    Returns ``q (N, n_blocks, block)`` int8 (rows past ``K`` zero), ``scales (N, n_blocks)`` float32 and the block
+    length; ``w ~= dequantised = q * scale`` with ``scale = max |w_block| / 127`` (1 for an all-zero block).
+    """
+    w = np.asarray(w, dtype=np.float32)
+    k, n = w.shape
+    block = int8_block_size(k) if block is None else int(block)
+    nb = -(-k // block)
+    wt = np.zeros((n, nb * block), np.float32)
+    wt[:, :k] = w.T
+    wt = wt.reshape(n, nb, block)
+    amax = np.abs(wt).max(axis=2)
+    scales = np.where(amax > 0, amax / 127.0, 1.0).astype(np.float32)
+    q = np.clip(np.rint(wt / scales[..., None]), -127, 127).astype(np.int8)
+    return q, scales, block
+
+
+def int8_dequantize(q: np.ndarray, scales: np.ndarray, k: int) -> np.ndarray:
+    """The ``(K, N)`` float32 basis that :func:`int8_quantize`'s ``(q, scales)`` stand for."""
+    n, nb, block = q.shape
+    return np.ascontiguousarray((q.astype(np.float32) * scales[..., None]).reshape(n, nb * block)[:, :k].T)
+
+
+def int8_activations(z: torch.Tensor, block: int) -> torch.Tensor:
+    """``z (..., K)`` rounded as onnxruntime's int8-compute MatMulNBits rounds its input (accuracy level 4):
+    symmetric int8 per block of ``block`` entries along ``K``, scale ``max |z_block| / 127`` - the torch reference of
+    the int8 graphs (parity), never exported."""
+    k = z.shape[-1]
+    nb = -(-k // block)
+    pad = torch.nn.functional.pad(z, (0, nb * block - k)).reshape(*z.shape[:-1], nb, block)
+    scale = pad.abs().amax(-1, keepdim=True) / 127.0
+    q = torch.where(scale > 0, torch.round(pad / torch.where(scale > 0, scale, torch.ones_like(scale))), pad)
+    return (q * scale).reshape(*z.shape[:-1], nb * block)[..., :k]
 
 
 class CompactUnprojection(nn.Module):
@@ -178,10 +239,29 @@ class CompactUnprojection(nn.Module):
     (one MatMul per cluster, then Concat), and the gather indices are remapped into the compact
     layout - the same numbers, exactly (only zero rows/columns are dropped). With ``vertex_last`` the
     gather also transposes: the output is ``(B, C, V)`` at no extra cost.
+
+    ``cluster_sorted`` (every vertex's ``C`` coefficients in one cluster): the output is ``(B, C, V)`` in
+    CLUSTER-SORTED vertex order (:attr:`vertex_order`: position ``i`` holds vertex ``vertex_order[i]``; the
+    clusters one after the other, each cluster's vertices ascending) - each cluster's basis columns are stored in
+    (coefficient, vertex) order so its GEMM writes one contiguous ``(B, C, n_g)`` block and a Concat along the
+    vertices ends it: no gather at all. Otherwise :attr:`vertex_order` is ``None`` (original order).
+
+    ``precision`` (:data:`PRECISIONS`): ``"fp16"`` keeps the bases in float16 and runs their GEMMs in half
+    precision (exported as Cast -> MatMul(float16) -> Cast); ``"int8"`` rounds them to int8 with per-column block
+    scales (:func:`int8_quantize`) - the ONNX file gets onnxruntime's MatMulNBits for them
+    (:func:`prt_torch.export.onnx_file.lower_int8_matmuls`); this module then multiplies with the dequantised
+    values (and, with :attr:`emulate_int8` set, rounds its input as onnxruntime does: the parity reference).
     """
 
-    def __init__(self, out: nn.Module, vertex_last: bool = False) -> None:
+    def __init__(self, out: nn.Module, vertex_last: bool = False, cluster_sorted: bool = False,
+                 precision: str = "fp32") -> None:
         super().__init__()
+        if precision not in PRECISIONS:
+            raise ValueError(f"unknown precision {precision!r}: expected one of {PRECISIONS}")
+        self.precision = precision
+        self.emulate_int8 = False
+        self.vertex_order: np.ndarray | None = None
+        self.int8_blocks: list[int] = []
         basis = out.basis.detach().float()
         gather = out.gather.detach().long()
         g_count, _, l_max = basis.shape
@@ -193,10 +273,31 @@ class CompactUnprojection(nn.Module):
         # row mode: every vertex's C coefficients come from one cluster -> reorder each cluster's
         # columns to (vertex, coefficient) so that the unprojection ends in a gather of whole
         # (C,)-rows (V indices) instead of V*C single floats
-        self.row_mode = bool((grp_vc == grp_vc[:, :1]).all()) and not vertex_last
-        self.vertex_last = vertex_last
+        one_cluster = bool((grp_vc == grp_vc[:, :1]).all())
+        self.cluster_sorted = cluster_sorted and one_cluster
+        self.row_mode = one_cluster and not vertex_last and not self.cluster_sorted
+        self.vertex_last = vertex_last or self.cluster_sorted
         self.k_used: list[int] = []
+        self.n_used: list[int] = []
         mean = out.mean.detach().float()
+        if self.cluster_sorted:
+            vgrp = grp_vc[:, 0]
+            col_vc = col.reshape(v, c)
+            order_s: list[torch.Tensor] = []
+            for g in range(g_count):
+                verts = torch.nonzero(vgrp == g).flatten()  # ascending
+                cols = col_vc[verts].t().reshape(-1)  # (C * n_g,) in (coefficient, vertex) order
+                blk = basis[g][:, cols] if cols.numel() else basis[g][:, :0]
+                rows = torch.nonzero(blk.abs().sum(dim=1) > 0).flatten()
+                k_g = int(rows.max()) + 1 if rows.numel() else 0
+                self.register_buffer(f"basis_{g}", self._stored(blk[:k_g].contiguous()))
+                self.k_used.append(k_g)
+                self.n_used.append(int(verts.numel()))
+                order_s.append(verts)
+            perm = torch.cat(order_s)
+            self.vertex_order = perm.numpy().astype(np.int64)
+            self.register_buffer("mean", mean.reshape(v, c)[perm].t().contiguous().reshape(1, c, v))
+            return
         if self.row_mode:
             vgrp = grp_vc[:, 0]
             col_vc = col.reshape(v, c)
@@ -207,7 +308,7 @@ class CompactUnprojection(nn.Module):
                 blk = basis[g][:, cols] if cols.numel() else basis[g][:, :0]
                 rows = torch.nonzero(blk.abs().sum(dim=1) > 0).flatten()
                 k_g = int(rows.max()) + 1 if rows.numel() else 0
-                self.register_buffer(f"basis_{g}", blk[:k_g].contiguous())
+                self.register_buffer(f"basis_{g}", self._stored(blk[:k_g].contiguous()))
                 self.k_used.append(k_g)
                 order.append(verts)
             perm = torch.cat(order)  # sorted position -> vertex
@@ -223,7 +324,7 @@ class CompactUnprojection(nn.Module):
             l_g = int(cols.max()) + 1 if cols.numel() else 0
             rows = torch.nonzero(basis[g, :, :l_g].abs().sum(dim=1) > 0).flatten()
             k_g = int(rows.max()) + 1 if rows.numel() else 0
-            self.register_buffer(f"basis_{g}", basis[g, :k_g, :l_g].contiguous())
+            self.register_buffer(f"basis_{g}", self._stored(basis[g, :k_g, :l_g].contiguous()))
             self.k_used.append(k_g)
             offsets[g] = start
             start += l_g
@@ -234,10 +335,35 @@ class CompactUnprojection(nn.Module):
         self.register_buffer("gather", gather_c)
         self.register_buffer("mean", mean)
 
+    def _stored(self, blk: torch.Tensor) -> torch.Tensor:
+        """A ``(K_g, L_g)`` basis block as stored for :attr:`precision`."""
+        if self.precision == "fp16":
+            return blk.half()
+        if self.precision == "int8" and blk.numel():
+            q, scales, block = int8_quantize(blk.numpy())
+            self.int8_blocks.append(block)
+            return torch.from_numpy(int8_dequantize(q, scales, blk.shape[0]))
+        self.int8_blocks.append(0)
+        return blk
+
+    def _cluster(self, z: torch.Tensor, g: int) -> torch.Tensor:
+        """``z (B, G, K)`` -> cluster ``g``'s output ``(B, L_g)`` at the stored precision."""
+        zg = z[:, g, : self.k_used[g]]
+        w = getattr(self, f"basis_{g}")
+        if self.precision == "fp16":
+            return (zg.half() @ w).float()
+        if self.precision == "int8" and self.emulate_int8:
+            zg = int8_activations(zg, self.int8_blocks[g])
+        return zg @ w
+
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         b = z.shape[0]
-        parts = [z[:, g, : self.k_used[g]] @ getattr(self, f"basis_{g}")
-                 for g in range(self.n_groups) if getattr(self, f"basis_{g}").numel()]
+        if self.cluster_sorted:  # (B, C, n_g) blocks, concatenated along the (cluster-sorted) vertices
+            blocks = [self._cluster(z, g).reshape(b, self.n_coeffs, self.n_used[g])
+                      if getattr(self, f"basis_{g}").numel() else z.new_zeros(b, self.n_coeffs, self.n_used[g])
+                      for g in range(self.n_groups) if self.n_used[g]]
+            return torch.cat(blocks, dim=2) + self.mean
+        parts = [self._cluster(z, g) for g in range(self.n_groups) if getattr(self, f"basis_{g}").numel()]
         y = torch.cat(parts, dim=1)  # (B, sum L_g)
         if self.row_mode:
             return y.reshape(b, self.n_vertices, self.n_coeffs).index_select(1, self.gather) + self.mean
@@ -254,16 +380,31 @@ class VisibilityGraph(nn.Module):
     unprojection compacted (:class:`CompactUnprojection`); any other module is used as is.
     """
 
-    def __init__(self, model: nn.Module, compact: bool = True, vertex_last: bool = False) -> None:
+    def __init__(self, model: nn.Module, compact: bool = True, vertex_last: bool = False,
+                 cluster_sorted: bool = False, precision: str = "fp32") -> None:
         super().__init__()
         self.model = model
         from prt_torch.models.projection import OutputUnprojection
 
         self.compact = compact and all(hasattr(model, a) for a in ("inp", "regressor", "out")) \
             and isinstance(model.out, OutputUnprojection)  # the per-cluster (padded) layout only
+        if precision != "fp32" and not self.compact:
+            raise ValueError(f"precision {precision!r} needs a per-cluster VisibilityModel (this is "
+                             f"{type(model).__name__})")
         self.vertex_last = vertex_last
+        #: cluster-sorted export order of the output's vertex axis (``None``: original order)
+        self.vertex_order: np.ndarray | None = None
+        self.precision = precision
         if self.compact:
-            self.out = CompactUnprojection(model.out, vertex_last=vertex_last)
+            self.out = CompactUnprojection(model.out, vertex_last=vertex_last, cluster_sorted=cluster_sorted,
+                                           precision=precision)
+            self.vertex_last = self.out.vertex_last
+            self.vertex_order = self.out.vertex_order
+
+    def emulate_int8(self, on: bool = True) -> None:
+        """Round the int8 GEMMs' inputs as onnxruntime does (the parity reference of an int8 export)."""
+        if self.compact:
+            self.out.emulate_int8 = on
 
     def forward(self, pose: torch.Tensor) -> torch.Tensor:
         """``(B, A) -> (B, V, C)``, or ``(B, C, V)`` when built with ``vertex_last``."""
@@ -276,12 +417,16 @@ class VisibilityGraph(nn.Module):
 class FusedGraph(nn.Module):
     """Pose features straight to radiance: :class:`VisibilityGraph` then :class:`ShadingGraph`."""
 
-    def __init__(self, model: nn.Module, order: int, n_terms: int = 8, vertex_last: bool = False) -> None:
+    def __init__(self, model: nn.Module, order: int, n_terms: int = 8, vertex_last: bool = False,
+                 cluster_sorted: bool = False, precision: str = "fp32") -> None:
         super().__init__()
         if isinstance(model, VisibilityGraph):
             model = model.model
-        self.model = VisibilityGraph(model, vertex_last=vertex_last)
-        self.vertex_last = vertex_last
+        self.model = VisibilityGraph(model, vertex_last=vertex_last, cluster_sorted=cluster_sorted,
+                                     precision=precision)
+        self.vertex_last = self.model.vertex_last
+        #: export order of every vertex axis (frames, view_dirs in; radiance out); ``None``: original order
+        self.vertex_order = self.model.vertex_order
         self.shading = ShadingGraph(order, n_terms)
 
     def forward(self, pose: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor, lobe_dirs: torch.Tensor,

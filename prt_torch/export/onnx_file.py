@@ -37,6 +37,7 @@ def export_onnx(
     metadata: Mapping[str, Any] | None = None,
     opset: int = DEFAULT_OPSET,
     exporter: str = "torchscript",
+    int8_weights: str | None = None,
 ) -> Path:
     """Export ``module(*args)`` to ``path`` (atomically) and check the result.
 
@@ -49,6 +50,8 @@ def export_onnx(
         metadata: string-valued metadata properties (values are converted with ``str``).
         opset: ONNX opset (>= 17).
         exporter: ``"torchscript"`` (``torch.onnx.export(dynamo=False)``, fast) or ``"dynamo"``.
+        int8_weights: a regular expression: MatMuls whose weight initializer's name matches it become int8
+            MatMulNBits nodes (:func:`lower_int8_matmuls`); ``None``: none.
 
     Returns:
         ``Path(path)``.
@@ -83,10 +86,65 @@ def export_onnx(
                                      opset_version=opset, dynamo=True, verbose=False)
             prog.save(str(tmp))
         model = onnx.load(str(tmp))
+        if int8_weights is not None:
+            lower_int8_matmuls(model, int8_weights)
         set_metadata(model, metadata or {})
         onnx.checker.check_model(model, full_check=True)
         onnx.save(model, str(tmp))
     return path
+
+
+#: accuracy level of the int8 MatMulNBits nodes: 4 = int8 compute (the input rounded to int8 per block: VNNI
+#: dot products); 0 = float32 compute on dequantised weights (measured several times slower on the CPU provider)
+INT8_ACCURACY_LEVEL = 4
+
+
+def lower_int8_matmuls(model: Any, pattern: str) -> int:
+    """Rewrite ``MatMul(A, W)`` nodes whose weight initializer ``W (K, N)`` (float32) has a name matching
+    ``pattern`` into onnxruntime's ``com.microsoft.MatMulNBits`` with 8-bit weights: ``W`` is quantised by
+    :func:`prt_torch.export.graphs.int8_quantize` (one float32 scale per output column and block of rows, no zero
+    point: the default 128), stored as uint8 ``(N, n_blocks, block)``. Modifies ``model`` in place; returns the
+    number of nodes rewritten."""
+    import re
+
+    from onnx import helper, numpy_helper
+
+    from prt_torch.export.graphs import int8_quantize
+
+    rx = re.compile(pattern)
+    inits = {i.name: i for i in model.graph.initializer}
+    users: dict[str, int] = {}
+    for node in model.graph.node:
+        for name in node.input:
+            users[name] = users.get(name, 0) + 1
+    count = 0
+    nodes = []
+    for node in model.graph.node:
+        w_name = node.input[1] if node.op_type == "MatMul" and len(node.input) == 2 else ""
+        init = inits.get(w_name)
+        if init is None or not rx.search(w_name) or len(init.dims) != 2 or init.data_type != 1:
+            nodes.append(node)
+            continue
+        w = numpy_helper.to_array(init)
+        k, n = w.shape
+        q, scales, block = int8_quantize(w)
+        b_name, s_name = f"{w_name}.int8", f"{w_name}.scales"
+        model.graph.initializer.append(numpy_helper.from_array((q.astype(np.int16) + 128).astype(np.uint8), b_name))
+        model.graph.initializer.append(numpy_helper.from_array(scales.reshape(-1), s_name))
+        nodes.append(helper.make_node("MatMulNBits", [node.input[0], b_name, s_name], list(node.output),
+                                      name=(node.name or w_name) + "_int8", domain="com.microsoft", K=k, N=n, bits=8,
+                                      block_size=block, accuracy_level=INT8_ACCURACY_LEVEL))
+        users[w_name] -= 1
+        count += 1
+    del model.graph.node[:]
+    model.graph.node.extend(nodes)
+    unused = [i for i in model.graph.initializer if users.get(i.name, 0) == 0 and i.name in inits
+              and rx.search(i.name)]
+    for i in unused:
+        model.graph.initializer.remove(i)
+    if count and not any(o.domain == "com.microsoft" for o in model.opset_import):
+        model.opset_import.append(helper.make_opsetid("com.microsoft", 1))
+    return count
 
 
 def set_metadata(model: Any, metadata: Mapping[str, Any]) -> None:
@@ -128,6 +186,26 @@ def initializer_bytes(path: str | os.PathLike[str]) -> int:
             for attr in node.attribute:
                 if attr.type == onnx.AttributeProto.TENSOR:
                     total += int(np.prod(attr.t.dims, dtype=np.int64)) * _itemsize(attr.t.data_type)
+    return total
+
+
+def weight_macs(path: str | os.PathLike[str]) -> int:
+    """Multiply-adds per sample of the graph's weight GEMMs: ``K * N`` of every MatMul / Gemm whose second input is an
+    initializer, ``K * N`` of every MatMulNBits, and the element count of every initializer an Einsum reads (the
+    per-cluster MLP layers) - the FLOPs a batch row must run against the model's weights."""
+    import onnx
+
+    model = onnx.load(str(path))
+    inits = {i.name: tuple(i.dims) for i in model.graph.initializer}
+    total = 0
+    for node in model.graph.node:
+        if node.op_type in ("MatMul", "Gemm") and len(node.input) > 1 and node.input[1] in inits:
+            total += int(np.prod(inits[node.input[1]], dtype=np.int64))
+        elif node.op_type == "MatMulNBits":
+            attrs = {a.name: a.i for a in node.attribute}
+            total += int(attrs.get("K", 0)) * int(attrs.get("N", 0))
+        elif node.op_type == "Einsum":
+            total += sum(int(np.prod(inits[n], dtype=np.int64)) for n in node.input if n in inits)
     return total
 
 

@@ -6,7 +6,14 @@ Writes into the run directory (file names: :class:`prt_torch.rundir.RunDir`):
 * the shading graph: ``visibility (B, V, C), frames (B, 9, V), view_dirs (B, 3, V), lobe_dirs (K, 3),
   lobe_coeffs (K, n, 3), rpo_M (k, C, C), rpo_w (k, C), rpo_tint (3,) -> radiance (B, V, 3)``
   (:class:`prt_torch.export.graphs.ShadingGraph`; frames and view directions vertex-last);
-* the fused graph: the two in one (``pose`` instead of ``visibility``);
+* the fused graph: the two in one (``pose`` instead of ``visibility``), with every vertex axis (frames and
+  view_dirs in, radiance out) in CLUSTER-SORTED order - the vertex-order contract of format /3: the frame
+  data's ``vertex_order (V,)`` lists the original vertex at each position (``export.json`` ``fused_vertex_order:
+  "cluster"``; absent / ``"original"``: identity), so the model's output unprojection is one contiguous block
+  GEMM per cluster with no gather; the player poses in that order and returns radiance in the original order.
+  The visibility and shading graphs keep the original order (the compare yardstick, the web viewer);
+* the output bases in ``precision`` (:data:`prt_torch.export.graphs.PRECISIONS`) in the visibility and fused
+  graphs;
 * one RPO file per named BRDF (loadable without torch), the cluster data of the vertex frames;
 * the export metadata: sizes, conventions, file names, parity errors, character hash - everything the
   player needs besides the character file.
@@ -38,7 +45,19 @@ from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_write_json
 from prt_torch.rundir import GRAPHS, RunDir, file_sha256, stage_key
 
-FORMAT = "prt_torch.export/2"  # /2: file_sha256, model_file (the commit record)
+FORMAT = "prt_torch.export/3"  # /2: file_sha256, model_file (the commit record); /3: precision, cluster-sorted fused
+
+#: the default weight precision of the exported bases (:data:`prt_torch.export.graphs.PRECISIONS`): int8 halves
+#: the visibility model's per-frame time on the CPU provider at an image cost well under 0.5 dB (prt compare rows
+#: learned_mlp_int8 / _fp16 / _fp32 and prt bench play measure it)
+DEFAULT_PRECISION = "int8"
+
+#: the ONNX weight initializers the precision applies to: the per-cluster output bases
+BASIS_PATTERN = r"basis_\d+$"
+
+#: ONNX vs torch parity tolerance (relative to the output's max) per precision: the int8 reference rounds its
+#: GEMM inputs as onnxruntime does; float16 GEMMs accumulate differently in torch and onnxruntime
+PARITY_RTOL_BY_PRECISION = {"fp32": 1e-4, "fp16": 3e-3, "int8": 1e-4}
 
 #: default BRDFs exported with every run (:func:`prt_torch.brdf.rpo.builtin_rpo` names)
 DEFAULT_BRDFS = ("lambert", "phong", "ggx", "ward")
@@ -68,9 +87,10 @@ def heldout_inputs(run: RunDir, n_max: int = 8) -> dict[str, np.ndarray]:
     return {k: np.asarray(v, dtype=np.float32) for k, v in data.items()} | {"rows": rows}
 
 
-def write_frame_data(run: RunDir) -> Path:
+def write_frame_data(run: RunDir, vertex_order: np.ndarray | None = None) -> Path:
     """Copy the dataset's ``cluster (V,)``, ``cluster_axis (Kc, 3)``, ``cluster_bone (Kc,)`` to the run's
-    frame-data file (atomically): the player rebuilds the vertex frames from them."""
+    frame-data file (atomically): the player rebuilds the vertex frames from them. ``vertex_order (V,)``: the
+    fused graph's vertex order (original vertex at each position), stored when given."""
     from prt_torch.io import atomic_path
 
     ds = run.dataset()
@@ -79,8 +99,9 @@ def write_frame_data(run: RunDir) -> Path:
     out = run.frames_path
     with atomic_path(out) as tmp:
         with open(tmp, "wb") as f:
+            extra = {} if vertex_order is None else {"vertex_order": np.asarray(vertex_order, dtype=np.int32)}
             np.savez(f, cluster=ds.cluster.astype(np.int32), cluster_axis=ds.cluster_axis.astype(np.float32),
-                     cluster_bone=ds.cluster_bone.astype(np.int32))
+                     cluster_bone=ds.cluster_bone.astype(np.int32), **extra)
     return out
 
 
@@ -109,19 +130,19 @@ def default_eye(positions: np.ndarray) -> np.ndarray:
 def export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None,
                brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
                exporter: str = "torchscript", force: bool = False,
-               console: Any = None) -> dict[str, Any]:
+               console: Any = None, precision: str = DEFAULT_PRECISION) -> dict[str, Any]:
     """Export a trained run to ONNX while holding the run directory's lock (:meth:`RunDir.lock`); see
     :func:`_export_run` for the arguments. Returns the export metadata."""
     run = RunDir.of(run_dir).require()
     with run.lock("export"):
         return _export_run(run, kind=kind, brdfs=brdfs, n_terms=n_terms, opset=opset, exporter=exporter,
-                           force=force, console=console)
+                           force=force, console=console, precision=precision)
 
 
 def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None,
                 brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
                 exporter: str = "torchscript", force: bool = False,
-                console: Any = None) -> dict[str, Any]:
+                console: Any = None, precision: str = DEFAULT_PRECISION) -> dict[str, Any]:
     """Export a trained run to ONNX; returns the ``export.json`` content.
 
     Args:
@@ -133,11 +154,14 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         opset: ONNX opset (>= 17).
         exporter: ``"torchscript"`` or ``"dynamo"``.
         force: re-export even when the export is up to date (same model file and settings).
+        precision: weight precision of the output bases (``"fp32"``, ``"fp16"``, ``"int8"``); models without
+            per-cluster bases export in float32.
     """
     import torch
 
     from prt_torch.export.graphs import (
         FUSED_INPUTS,
+        PRECISIONS,
         SHADING_INPUTS,
         FusedGraph,
         ShadingGraph,
@@ -147,14 +171,23 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     from prt_torch.export.parity import check_parity
     from prt_torch.models.visibility import load_model, model_path
 
+    check(precision in PRECISIONS, f"unknown precision {precision!r}: expected one of {list(PRECISIONS)}")
     run = RunDir.of(run_dir).require()
     mpath = model_path(run, kind)
     model = load_model(run, kind)
     model_hash = file_sha256(mpath)
+    from prt_torch.export.shexp_graph import (  # sphere blockers + SHEXP graph (issue 10)
+        SHEXP_GRAPH_VERSION,
+        blocker_count,
+        ship_shexp,
+    )
+
+    n_spheres = blocker_count(run)
     key = stage_key({"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
-                     "brdfs": sorted(brdfs)})
+                     "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT, "blockers": n_spheres,
+                     "shexp_graph": SHEXP_GRAPH_VERSION})
     outputs = (run.export_json, run.frames_path, *(run.graph_path(g) for g in GRAPHS),
-               *(run.rpo_path(b) for b in brdfs))
+               *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path)
     if not force and run.is_current("export", key, outputs):
         try:
             return run.export_meta()
@@ -168,7 +201,11 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
           f"model takes {model.n_features} pose features but the character gives {character.feature_width}")
     order, V, A, C = model.order, model.n_vertices, model.n_features, model.n_coeffs
     held = heldout_inputs(run)
-    write_frame_data(run)
+    vis_graph = VisibilityGraph(model, precision=precision if _per_cluster(model) else "fp32").eval()
+    precision = vis_graph.precision
+    fused_graph = FusedGraph(model, order, n_terms, cluster_sorted=True, precision=precision).eval()
+    vorder = fused_graph.vertex_order  # None: the model has no per-vertex clusters, the fused graph stays original
+    write_frame_data(run, vorder)
     check(held["frames"].shape[1] == V, f"dataset has {held['frames'].shape[1]} vertices, the model {V}")
     from prt_torch.bake.store import below_horizon_of
 
@@ -188,11 +225,10 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         "prt.frames": "frames input (B, 9, V): entry 3i+j = F[i, j], rows (t, b, n), world; local = F @ w",
         "prt.view_dirs": "(B, 3, V) unit world directions vertex -> eye",
         "prt.below_horizon": below_horizon,
+        "prt.precision": precision,
     }
     batch = {0: "B"}
-    vis_graph = VisibilityGraph(model).eval()
     shade_graph = ShadingGraph(order, n_terms).eval()
-    fused_graph = FusedGraph(vis_graph, order, n_terms).eval()
 
     # example / parity inputs: held-out poses with their baked frames, a camera, 3 lobes, an RPO
     pose = held["pose"]
@@ -207,6 +243,9 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
                 "lobe_dirs": lobes[0], "lobe_coeffs": lobes[1], "rpo_M": M, "rpo_w": w,
                 "rpo_tint": np.asarray(rpo.tint, dtype=np.float32)}
     fused_in = {"pose": pose, **{k: shade_in[k] for k in SHADING_INPUTS[1:]}}
+    if vorder is not None:  # the fused graph's vertex axes in export (cluster-sorted) order
+        fused_in["frames"] = np.ascontiguousarray(fused_in["frames"][:, :, vorder])
+        fused_in["view_dirs"] = np.ascontiguousarray(fused_in["view_dirs"][:, :, vorder])
     dyn_shade = {"visibility": batch, "frames": batch, "view_dirs": batch, "radiance": batch}
     dyn_fused = {"pose": batch, "frames": batch, "view_dirs": batch, "radiance": batch}
     t0 = time.perf_counter()
@@ -218,30 +257,57 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     for graph_name, module, inputs, in_names, out_names, dyn in specs:
         path = run.graph_path(graph_name)
         args = [torch.from_numpy(np.ascontiguousarray(inputs[k], dtype=np.float32)) for k in in_names]
-        export_onnx(module, args, path, in_names, out_names, dyn, metadata={**base_meta, "prt.graph": graph_name},
-                    opset=opset, exporter=exporter)
-        p = check_parity(module, path, {k: inputs[k] for k in in_names})
+        g_meta = {**base_meta, "prt.graph": graph_name,
+                  "prt.vertex_order": "cluster" if graph_name == "fused" and vorder is not None else "original"}
+        if graph_name == "shading":
+            g_meta["prt.precision"] = "fp32"
+        export_onnx(module, args, path, in_names, out_names, dyn, metadata=g_meta, opset=opset, exporter=exporter,
+                    int8_weights=BASIS_PATTERN if precision == "int8" and graph_name != "shading" else None)
+        _emulate_int8(module, True)
+        try:
+            p = check_parity(module, path, {k: inputs[k] for k in in_names},
+                             rtol=PARITY_RTOL_BY_PRECISION[precision])
+        finally:
+            _emulate_int8(module, False)
         parity[graph_name] = {**p.as_dict(), "initializer_bytes": initializer_bytes(path),
                               "file_bytes": path.stat().st_size}
         if console is not None:
             console.print(f"  {path.name}: parity rel. error {p.rel_error:.2e} on {len(pose)} held-out poses")
+    shexp = ship_shexp(run, character, order, n_spheres, opset, base_meta)
     meta = {
         "format": FORMAT, "conventions": conventions, "below_horizon": below_horizon, "sh_order": order,
         "n_coeffs": C, "n_vertices": V, "n_features": A, "n_terms": n_terms, "model_kind": model.kind,
-        "model_sha256": model_hash, "opset": opset,
+        "model_sha256": model_hash, "opset": opset, "precision": precision,
+        "fused_vertex_order": "cluster" if vorder is not None else "original",
         "exporter": exporter, "character_hash": character.content_hash(), "character_name": character.name,
         "character_file": run.relative(run.character_path), "frames_file": run.relative(run.frames_path),
         "files": {g: run.relative(run.graph_path(g)) for g in GRAPHS},
         "inputs": {"visibility": ["pose"], "shading": list(SHADING_INPUTS), "fused": list(FUSED_INPUTS)},
         "brdfs": sorted(rpo_files), "rpo_files": rpo_files, "parity": parity,
         "parity_rows": held["rows"].tolist(), "export_seconds": time.perf_counter() - t0,
-        "model_file": run.relative(mpath),
+        "model_file": run.relative(mpath), "shexp": shexp,
         "file_sha256": run.unit_hashes([run.frames_path, *(run.rpo_path(b) for b in rpo_files),
-                                        *(run.graph_path(g) for g in GRAPHS)]),
+                                        *(run.graph_path(g) for g in GRAPHS), run.blockers_path, run.shexp_path]),
     }
     atomic_write_json(run.export_json, meta)  # the commit record: written last
     run.mark_done("export", key)
     return meta
+
+
+def _per_cluster(model: Any) -> bool:
+    """Whether ``model`` has the per-cluster output bases that the precision and the cluster order apply to."""
+    from prt_torch.models.projection import OutputUnprojection
+
+    return isinstance(getattr(model, "out", None), OutputUnprojection)
+
+
+def _emulate_int8(module: Any, on: bool) -> None:
+    """Switch the int8 input rounding of every :class:`VisibilityGraph` in ``module`` (the parity reference)."""
+    from prt_torch.export.graphs import VisibilityGraph
+
+    for m in module.modules():
+        if isinstance(m, VisibilityGraph):
+            m.emulate_int8(on)
 
 
 def _example_lobes(order: int) -> tuple[np.ndarray, np.ndarray]:

@@ -70,7 +70,8 @@ class RunBundle:
     """
 
     def __init__(self, run_dir: str | os.PathLike[str] | RunDir, threads: int = 2,
-                 graphs: tuple[str, ...] = ("visibility", "shading", "fused"), spinning: bool = False) -> None:
+                 graphs: tuple[str, ...] = ("visibility", "shading", "fused"), spinning: bool = False,
+                 device: str = "cpu") -> None:
         self.run = RunDir.of(run_dir)
         self.run_dir = self.run.path
         self.meta: dict[str, Any] = self.run.export_meta()  # verified: every file has its recorded sha256
@@ -94,10 +95,23 @@ class RunBundle:
             self.cluster = np.asarray(z["cluster"]).astype(np.intp)
             self.cluster_axis = np.asarray(z["cluster_axis"], dtype=np.float32)
             self.cluster_bone = np.asarray(z["cluster_bone"]).astype(np.intp)
+            order = np.asarray(z["vertex_order"]).astype(np.intp) if "vertex_order" in z.files else None
         check(self.cluster.shape == (self.n_vertices,), f"{fpath}: cluster labels must be ({self.n_vertices},)")
+        #: the fused graph's vertex order (format /3, ``fused_vertex_order: cluster``): position ``i`` holds
+        #: original vertex ``vertex_order[i]``; ``None``: the original order (older exports)
+        self.vertex_order: np.ndarray | None = None
+        if self.meta.get("fused_vertex_order", "original") == "cluster":
+            check(order is not None and order.shape == (self.n_vertices,)
+                  and np.array_equal(np.sort(order), np.arange(self.n_vertices)),
+                  f"{fpath}: vertex_order must be a permutation of the {self.n_vertices} vertices: run `prt export "
+                  f"{self.run_dir} --force`")
+            self.vertex_order = order
+        #: weight precision of the exported bases (``"fp32"`` for older exports)
+        self.precision = str(self.meta.get("precision", "fp32"))
+        self.device = device
         self.graphs: dict[str, OrtGraph] = {}
         for name in graphs:
-            g = OrtGraph(self.run.graph_path(name), threads=threads, spinning=spinning)
+            g = OrtGraph(self.run.graph_path(name), threads=threads, spinning=spinning, device=device)
             md = g.metadata
             for key, want in (("prt.character_hash", self.meta["character_hash"]),
                               ("prt.sh_order", str(self.order)), ("prt.n_vertices", str(self.n_vertices))):

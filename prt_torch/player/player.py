@@ -9,7 +9,12 @@ Per frame (``Player.compute``)::
     [fused]  ORT fused.onnx(pose, frames, view dirs, lobes, RPO) -> radiance (B, V, 3)
     [split]  ORT visibility.onnx(pose) -> (B, V, C);  ORT shading.onnx(...) -> radiance
     [overlap] split, with visibility.onnx running on a worker thread while numpy poses (compute_overlapped)
-    B > 1: one batched visibility call, then shading per character
+    B > 1 (a crowd): ONE batched call of every graph for all B characters (same or different clips)
+
+Vertex order: a format /3 export's fused graph takes and returns its vertex axes in the CLUSTER-SORTED order
+``bundle.vertex_order`` (position i holds original vertex vertex_order[i]); the Poser poses in that order
+(weights permuted once), and everything the Player returns (radiance, PoseBatch fields, visibility) is in the
+ORIGINAL vertex order: only the radiance (B, V, 3) is put back per frame.
     radiance --tone map (exposure, Reinhard white), gamma--> uint8 colours
 
 Embedding::
@@ -32,6 +37,7 @@ import numpy as np
 from prt_torch.errors import PrtError, check
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
+from prt_torch.player.material import brdf_names, select_rpo, surface_texture
 from prt_torch.player.posing import PoseBatch, Poser
 from prt_torch.player.timing import FrameTimer
 from prt_torch.player.tonemap import ToneMap, auto_tonemap
@@ -96,19 +102,29 @@ class Player:
             The limit applies process-wide while the player is open (undone by :meth:`close`).
         spinning: let onnxruntime's idle intra-op threads busy-wait (faster ORT calls on an otherwise
             idle machine; steals a core from the numpy posing and from other processes on a busy one).
+        device: ``"cpu"`` or ``"cuda"`` (onnxruntime's CUDA provider: ``onnxruntime-gpu``, extra ``gpu``).
+        crowd_chunk: characters per fused call for a crowd (``B`` > this: several calls of this many); ``None``:
+            the whole crowd in ONE call. On a CPU the shading's per-vertex intermediates grow with ``B`` and leave
+            the cache, so a few characters per call can beat one call (``prt bench play --crowd-chunk`` measures).
     """
 
     def __init__(self, run_dir: str | os.PathLike[str] | RunDir, env: str | os.PathLike[str] | None = None,
                  brdf: str | None = None, graph: str = "fused", threads: int = 2,
                  window_size: tuple[int, int] = (480, 640), exposure: ToneMap | None = None, n_lobes: int = 3,
-                 blas_threads: int | None = 1, spinning: bool = False) -> None:
+                 blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu",
+                 crowd_chunk: int | None = None) -> None:
+        check(crowd_chunk is None or int(crowd_chunk) >= 1, f"crowd_chunk must be >= 1, got {crowd_chunk}")
+        self.crowd_chunk = None if crowd_chunk is None else int(crowd_chunk)
         check(graph in GRAPH_MODES, f"unknown graph mode {graph!r}: expected one of {GRAPH_MODES}")
         self._blas_limit: Any = None
         if blas_threads is not None:
             from threadpoolctl import threadpool_limits
 
             self._blas_limit = threadpool_limits(limits=int(blas_threads), user_api="blas")
-        self.bundle = RunBundle(run_dir, threads=threads, spinning=spinning)
+        self.bundle = RunBundle(run_dir, threads=threads, spinning=spinning, device=device)
+        self.device = device
+        #: the fused graph's vertex order (``None``: original); the posing runs in it
+        self.vertex_order = self.bundle.vertex_order
         self.graph = graph
         self.character = self.bundle.character
         self.order = self.bundle.order
@@ -116,11 +132,14 @@ class Player:
         self.lighting: Lighting = load_lighting(env, self.order, n_lobes)
         self.light_angle = 0.0
         self._lobe_dirs = self.lighting.dirs
-        self.rpo: RPOTensors = self.bundle.rpo(brdf if brdf is not None else self.bundle.brdf_names[0])
+        # brdf None: the character's own material (a glTF character), else the catalogue's first (player.material)
+        self.rpo: RPOTensors = select_rpo(self.bundle, brdf)
         self.exposure = exposure
         self.unshadowed = hemisphere_visibility(self.order, self.bundle.below_horizon)
         ch = self.character
-        self.poser = Poser(ch, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone)
+        # the fused graph's order when it is the path played (the split graphs take the original order)
+        self.poser = Poser(ch, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone,
+                           order=self.vertex_order if graph == "fused" else None)
         self.center, self.radius = camera_target(ch.rest_vertices)
         self.camera_azimuth = CAMERA_AZIMUTH
         self.camera_elevation = CAMERA_ELEVATION
@@ -135,11 +154,11 @@ class Player:
         return camera_eye(self.center, self.radius, self.camera_azimuth, self.camera_elevation)
 
     def set_brdf(self, name: str) -> None:
-        """Swap the material (an RPO of the run's catalogue, or an RPO file)."""
-        self.rpo = self.bundle.rpo(name)
+        """Swap the material (an RPO of the run's catalogue, ``material``: the character's own, or an RPO file)."""
+        self.rpo = select_rpo(self.bundle, name)
 
     def next_brdf(self) -> str:
-        names = self.bundle.brdf_names
+        names = brdf_names(self.bundle)
         i = (names.index(self.rpo.name) + 1) % len(names) if self.rpo.name in names else 0
         self.set_brdf(names[i])
         return names[i]
@@ -163,9 +182,43 @@ class Player:
             c = c.resample(fps)
         return np.asarray(c.local)
 
+    def crowd_locals(self, clips: list[str | Clip] | tuple[str | Clip, ...], frame: int,
+                     stagger: int = 0) -> np.ndarray:
+        """``(N, J, 4, 4)`` locals of a crowd of ``N = len(clips)`` characters at ``frame``: character ``i`` plays
+        ``clips[i]`` (looping) ``i * stagger`` frames ahead - one batch for :meth:`compute`."""
+        check(len(clips) > 0, "a crowd needs at least one clip")
+        out = []
+        for i, c in enumerate(clips):
+            loc = self._clip_cache(c)
+            out.append(loc[(frame + i * stagger) % len(loc)])
+        return np.stack(out)
+
+    def _clip_cache(self, clip: str | Clip) -> np.ndarray:
+        key = clip if isinstance(clip, str) else id(clip)
+        cache = self.__dict__.setdefault("_clips", {})
+        if key not in cache:
+            cache[key] = self.clip_locals(clip)
+        return cache[key]
+
     def pose(self, local: np.ndarray) -> PoseBatch:
         """numpy FK, LBS, local frames, pose features and view directions for ``(B, J, 4, 4)`` locals."""
         return self.poser(local, self.eye)
+
+    def _fused_feeds(self, state: PoseBatch) -> dict[str, np.ndarray]:
+        """The fused graph's inputs: frames and view directions in its vertex order (free when posed in it)."""
+        o = self.vertex_order
+        return {"pose": state.features, "frames": state.in_order("frames", o),
+                "view_dirs": state.in_order("view_dirs", o), "lobe_dirs": self._lobe_dirs,
+                "lobe_coeffs": self.lighting.coeffs, "rpo_M": self.rpo.M, "rpo_w": self.rpo.w,
+                "rpo_tint": self.rpo.tint}
+
+    def _to_original(self, radiance: np.ndarray) -> np.ndarray:
+        """``(B, V, 3)`` radiance from the fused graph's vertex order back to the original one."""
+        if self.vertex_order is None:
+            return radiance
+        out = np.empty_like(radiance)
+        out[:, self.vertex_order] = radiance
+        return out
 
     def _shading_feeds(self, state: PoseBatch) -> dict[str, np.ndarray]:
         return {"frames": state.frames, "view_dirs": state.view_dirs, "lobe_dirs": self._lobe_dirs,
@@ -182,17 +235,26 @@ class Player:
     def shade(self, state: PoseBatch, visibility: np.ndarray | None = None, checked: bool = True,
               timer: FrameTimer | None = None) -> np.ndarray:
         """Radiance ``(B, V, 3)``: from the model (``visibility=None``) or a given ``(B, V, C)`` visibility."""
-        feeds = self._shading_feeds(state)
-        if visibility is None and state.frames.shape[0] > 1:
-            return self._shade_batch(state, feeds, checked, timer)
-        if visibility is None and self.graph == "fused":
+        if visibility is None and self.graph == "fused":  # one call for all B characters
             g = self.bundle.graphs["fused"]
-            feeds["pose"] = state.features
             t0 = time.perf_counter()
-            out = g.run(feeds)["radiance"] if checked else g.run_unchecked(feeds)[0]
+            feeds = self._fused_feeds(state)
+            n_b, step = state.features.shape[0], self.crowd_chunk or state.features.shape[0]
+            if n_b <= step:
+                out = g.run(feeds)["radiance"] if checked else g.run_unchecked(feeds)[0]
+            else:
+                parts = []
+                for s in range(0, n_b, step):
+                    f = {k: (v[s:s + step] if k in ("pose", "frames", "view_dirs") else v) for k, v in feeds.items()}
+                    parts.append(g.run(f)["radiance"] if checked else g.run_unchecked(f)[0])
+                out = np.concatenate(parts)
+            out = self._to_original(out)
             if timer is not None:
                 timer.add("fused", time.perf_counter() - t0)
             return out
+        feeds = self._shading_feeds(state)
+        if visibility is None and state.features.shape[0] > 1:
+            return self._shade_batch(state, feeds, checked, timer)
         t0 = time.perf_counter()
         if visibility is None:
             visibility = self.visibility(state.features, checked)
@@ -208,13 +270,14 @@ class Player:
 
     def _shade_batch(self, state: PoseBatch, feeds: dict[str, np.ndarray], checked: bool,
                      timer: FrameTimer | None) -> np.ndarray:
-        """``B > 1`` characters: ONE visibility call for the batch (the model's weights stream once for all
-        ``B`` poses: per-cluster GEMMs instead of GEMVs), then shading character by character (its
-        ``(k*C, V)`` intermediates stay cache-sized instead of growing ``B`` times)."""
+        """``B > 1`` characters, split graphs: ONE visibility call for the batch (the model's weights stream once
+        for all ``B`` poses: per-cluster GEMMs instead of GEMVs), then ONE shading call."""
         t0 = time.perf_counter()
         vis = self.visibility(state.features, checked)  # (B, V, C)
         t1 = time.perf_counter()
-        out = self._shade_each(state, vis, feeds, checked)
+        g = self.bundle.graphs["shading"]
+        feeds["visibility"] = vis
+        out = g.run(feeds)["radiance"] if checked else g.run_unchecked(feeds)[0]
         if timer is not None:
             timer.add("visibility", t1 - t0)
             timer.add("shading", time.perf_counter() - t1)
@@ -272,7 +335,15 @@ class Player:
         return state, out
 
     def colors(self, radiance: np.ndarray) -> np.ndarray:
-        """uint8 colours; fixes the tone map (exposure, white) from the first call when it was not given."""
+        """uint8 colours; fixes the tone map (exposure, white) from the first call when it was not given.
+        The character's base colour (its material, :mod:`prt_torch.player.material`) multiplies the radiance
+        (per vertex here; a textured character's rendered images multiply it per pixel: :meth:`render_frame`)."""
+        if not hasattr(self, "_base_color"):
+            from prt_torch.player.material import vertex_base_color
+
+            self._base_color = vertex_base_color(self.character)
+        if self._base_color is not None:
+            radiance = radiance * self._base_color
         if self.exposure is None:
             self.exposure = auto_tonemap(radiance)
         return self.exposure(radiance)
@@ -284,16 +355,19 @@ class Player:
         if self._renderer is None or self._renderer.off_screen != off_screen:
             if self._renderer is not None:
                 self._renderer.close()
+            tex = surface_texture(self.character)  # a textured character: base colour per pixel
             self._renderer = MeshRenderer(self.character.rest_vertices, self.character.faces,
                                           window_size=(self.window_size[1], self.window_size[0]),
-                                          off_screen=off_screen)
+                                          off_screen=off_screen, uv=None if tex is None else tex[0],
+                                          texture=None if tex is None else tex[1])
         self._renderer.set_camera(self.eye, self.center)
         return self._renderer
 
     def render_frame(self, state: PoseBatch, radiance: np.ndarray, index: int = 0) -> np.ndarray:
         """Render character ``index`` with ``radiance (B, V, 3)`` to an ``(H, W, 3)`` uint8 image (offscreen)."""
         r = self.renderer(off_screen=True)
-        r.update(state.positions_vx3(index), self.colors(radiance[index]))
+        col = self.colors(radiance[index])  # fixes the tone map on the first call
+        r.update(state.positions_vx3(index), col, radiance=radiance[index], tonemap=self.exposure)
         return r.render()
 
     def play(self, clip: str | Clip, out: str | os.PathLike[str] | None = None,
@@ -341,7 +415,7 @@ class Player:
                 if renderer is not None:
                     with timer.step("render"):
                         renderer.set_camera(self.eye, self.center)
-                        renderer.update(state.positions_vx3(0), col)
+                        renderer.update(state.positions_vx3(0), col, radiance=radiance[0], tonemap=self.exposure)
                         if show:
                             renderer.plotter.update()
                             img = None

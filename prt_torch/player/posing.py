@@ -14,30 +14,74 @@ vectors to the eye, ``features (B, A)``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from prt_torch.errors import PrtError, check
 from prt_torch.rig.vertex_frames import dot3, fallback_axes, vertex_frames_soa
 
 
-@dataclass
 class PoseBatch:
-    """Posed characters, vertex-last float32 arrays (see module docstring)."""
+    """Posed characters, vertex-last float32 arrays (see module docstring).
 
-    positions: np.ndarray  # (B, 3, V)
-    normals: np.ndarray  # (B, 3, V)
-    frames: np.ndarray  # (B, 9, V)
-    view_dirs: np.ndarray  # (B, 3, V)
-    features: np.ndarray  # (B, A)
+    ``positions``, ``normals``, ``frames``, ``view_dirs`` always read in the ORIGINAL vertex order. A batch posed
+    in an export order (``order``: position ``i`` holds original vertex ``order[i]``, the cluster-sorted order of
+    the fused graph) keeps its arrays in that order - :meth:`in_order` hands them to the graph as they are - and
+    puts them back into the original order only when a field is read (once, cached). Assigning a field stores
+    it in the original order.
+    """
+
+    _FIELDS = ("positions", "normals", "frames", "view_dirs")
+
+    def __init__(self, positions: np.ndarray, normals: np.ndarray, frames: np.ndarray, view_dirs: np.ndarray,
+                 features: np.ndarray, order: np.ndarray | None = None) -> None:
+        self._raw = {"positions": positions, "normals": normals, "frames": frames, "view_dirs": view_dirs}
+        self._orig: dict[str, np.ndarray] = {}
+        self.features = features  # (B, A)
+        self.order = order
+
+    def __repr__(self) -> str:
+        b, _, v = self._raw["positions"].shape
+        return f"PoseBatch(B={b}, V={v}, order={'original' if self.order is None else 'export'})"
+
+    def _original(self, name: str) -> np.ndarray:
+        if self.order is None:
+            return self._raw[name]
+        if name not in self._orig:
+            raw = self._raw[name]
+            out = np.empty_like(raw)
+            out[..., self.order] = raw
+            self._orig[name] = out
+        return self._orig[name]
+
+    def _set(self, name: str, value: np.ndarray) -> None:
+        if self.order is None:
+            self._raw[name] = value
+        else:
+            self._orig[name] = value
+            self._raw[name] = np.ascontiguousarray(np.asarray(value)[..., self.order])
+
+    positions = property(lambda self: self._original("positions"), lambda self, v: self._set("positions", v),
+                         doc="``(B, 3, V)`` world positions, original vertex order")
+    normals = property(lambda self: self._original("normals"), lambda self, v: self._set("normals", v),
+                       doc="``(B, 3, V)`` unit world normals, original vertex order")
+    frames = property(lambda self: self._original("frames"), lambda self, v: self._set("frames", v),
+                      doc="``(B, 9, V)`` frames (entry ``3i + j`` is ``F[i, j]``), original vertex order")
+    view_dirs = property(lambda self: self._original("view_dirs"), lambda self, v: self._set("view_dirs", v),
+                         doc="``(B, 3, V)`` unit directions vertex -> eye, original vertex order")
+
+    def in_order(self, name: str, order: np.ndarray | None) -> np.ndarray:
+        """Field ``name`` with its vertex axis in ``order`` (``None``: original): free when posed in ``order``."""
+        if order is self.order or (order is not None and self.order is not None and np.array_equal(order, self.order)):
+            return self._raw[name]
+        orig = self._original(name)
+        return orig if order is None else np.ascontiguousarray(orig[..., order])
 
     def positions_vx3(self, index: int = 0) -> np.ndarray:
-        """``(V, 3)`` positions of character ``index`` (for rendering)."""
+        """``(V, 3)`` positions of character ``index`` (for rendering), original vertex order."""
         return np.ascontiguousarray(self.positions[index].T)
 
     def frames_vx33(self) -> np.ndarray:
-        """``(B, V, 3, 3)`` frames in the DESIGN.md layout."""
+        """``(B, V, 3, 3)`` frames in the DESIGN.md layout, original vertex order."""
         b, _, v = self.frames.shape
         return np.ascontiguousarray(self.frames.transpose(0, 2, 1).reshape(b, v, 3, 3))
 
@@ -49,9 +93,13 @@ class Poser:
         character: a :class:`prt_torch.rig.Character`.
         cluster: ``(V,)`` cluster labels; cluster_axis: ``(Kc, 3)``; cluster_bone: ``(Kc,)`` (the
             dataset's frame data, as in :func:`prt_torch.rig.vertex_frames.vertex_frames`).
+        order: pose in this vertex order (``(V,)`` permutation: position ``i`` is original vertex ``order[i]``;
+            the fused graph's cluster-sorted order) - the weights and rest mesh are permuted once here, so the
+            posing costs the same; ``None``: the original order.
     """
 
-    def __init__(self, character, cluster: np.ndarray, cluster_axis: np.ndarray, cluster_bone: np.ndarray) -> None:
+    def __init__(self, character, cluster: np.ndarray, cluster_axis: np.ndarray, cluster_bone: np.ndarray,
+                 order: np.ndarray | None = None) -> None:
 
         self.character = character
         v = character.num_vertices
@@ -61,13 +109,19 @@ class Poser:
         bones = np.asarray(cluster_bone).astype(np.intp)
         check(axes.ndim == 2 and axes.shape[1] == 3 and bones.shape == (axes.shape[0],)
               and int(cluster.max()) < axes.shape[0], "cluster axes / bones do not match the cluster labels")
-        self.labels = cluster.astype(np.intp)
+        if order is not None:
+            order = np.asarray(order).astype(np.intp)
+            check(order.shape == (v,) and np.array_equal(np.sort(order), np.arange(v)),
+                  f"vertex order must be a permutation of {v} vertices")
+        self.order = order
+        sel = slice(None) if order is None else order
+        self.labels = cluster.astype(np.intp)[sel]
         self.axes = axes
         self.fallback = fallback_axes(axes)
         self.bones = bones
-        self.w_t = np.ascontiguousarray(character.dense_weights.T, dtype=np.float32)  # (J, V)
-        self.rest = np.ascontiguousarray(character.rest_vertices.T, dtype=np.float32)  # (3, V)
-        self.rest_n = np.ascontiguousarray(character.rest_normals.T, dtype=np.float32)
+        self.w_t = np.ascontiguousarray(character.dense_weights.T[:, sel], dtype=np.float32)  # (J, V)
+        self.rest = np.ascontiguousarray(character.rest_vertices.T[:, sel], dtype=np.float32)  # (3, V)
+        self.rest_n = np.ascontiguousarray(character.rest_normals.T[:, sel], dtype=np.float32)
         self.n_vertices = v
         self._axes2 = np.stack([self.axes, self.fallback])  # (2, Kc, 3) float64
         self._buffers: tuple[np.ndarray, np.ndarray] | None = None
@@ -125,7 +179,7 @@ class Poser:
         _normalize(view, s1, s3)
         if features is None:
             features = np.ascontiguousarray(pose_features(local, ch.bind_local, ch.parents), dtype=np.float32)
-        return PoseBatch(pos, nrm, frames, view, features)
+        return PoseBatch(pos, nrm, frames, view, features, order=self.order)
 
     def _scratch(self, b: int) -> tuple[np.ndarray, np.ndarray]:
         """``(B, V)`` and ``(B, 3, V)`` float32 scratch buffers, allocated once per batch size."""

@@ -7,7 +7,9 @@
 * input validation against the graph's declared shapes (symbolic axes such as ``B`` accept any
   size but must agree between inputs), float32 conversion and a NaN/Inf check, each failure a
   one-line :class:`PrtError`;
-* a fast path (:meth:`OrtGraph.run_unchecked`) for the per-frame loop once inputs are known-good.
+* a fast path (:meth:`OrtGraph.run_unchecked`) for the per-frame loop once inputs are known-good;
+* ``device="cuda"``: onnxruntime's CUDA execution provider (the ``onnxruntime-gpu`` package, extra ``gpu``), with
+  the CPU provider behind it for any node CUDA lacks.
 """
 
 from __future__ import annotations
@@ -43,8 +45,34 @@ def session_options(threads: int = 2, spinning: bool = False):  # -> onnxruntime
     return so
 
 
+#: devices of :class:`OrtGraph`
+DEVICES = ("cpu", "cuda")
+
+
+def cuda_available() -> bool:
+    """Whether onnxruntime offers its CUDA execution provider here (``onnxruntime-gpu`` installed); a GPU is
+    needed too for a session to start on it (:func:`providers_for` checks)."""
+    import onnxruntime as ort
+
+    return "CUDAExecutionProvider" in ort.get_available_providers()
+
+
+def providers_for(device: str) -> list[str]:
+    """onnxruntime providers for ``device`` (``"cpu"`` or ``"cuda"``); one-line :class:`PrtError` when CUDA is asked
+    for and onnxruntime cannot offer it."""
+    if device not in DEVICES:
+        raise PrtError(f"unknown device {device!r}: expected one of {list(DEVICES)}")
+    if device == "cpu":
+        return ["CPUExecutionProvider"]
+    if not cuda_available():
+        raise PrtError("device 'cuda' needs onnxruntime-gpu (pip install 'prt-torch[gpu]') and a CUDA GPU; "
+                       "this onnxruntime offers only the CPU")
+    return ["CUDAExecutionProvider", "CPUExecutionProvider"]
+
+
 class OrtGraph:
-    """One ONNX graph loaded into onnxruntime (CPU), with checked and unchecked run methods.
+    """One ONNX graph loaded into onnxruntime (CPU, or CUDA with ``device="cuda"``), with checked and unchecked
+    run methods.
 
     Attributes:
         path: the ``.onnx`` file.
@@ -53,17 +81,22 @@ class OrtGraph:
         outputs: output names in graph order.
     """
 
-    def __init__(self, path: str | os.PathLike[str], threads: int = 2, spinning: bool = False) -> None:
+    def __init__(self, path: str | os.PathLike[str], threads: int = 2, spinning: bool = False,
+                 device: str = "cpu") -> None:
         import onnxruntime as ort
 
         self.path = Path(path)
         if not self.path.is_file():
             raise PrtError(f"ONNX file not found: {self.path}")
+        providers = providers_for(device)
+        self.device = device
         try:
             self.session = ort.InferenceSession(str(self.path), sess_options=session_options(threads, spinning),
-                                                providers=["CPUExecutionProvider"])
+                                                providers=providers)
         except Exception as exc:  # onnxruntime raises its own exception types
             raise PrtError(f"{self.path}: onnxruntime cannot load it ({str(exc).splitlines()[0][:200]})") from None
+        if device == "cuda" and "CUDAExecutionProvider" not in self.session.get_providers():
+            raise PrtError(f"{self.path}: onnxruntime could not start its CUDA provider (no usable GPU?)")
         meta = self.session.get_modelmeta()
         self.metadata: dict[str, str] = dict(meta.custom_metadata_map)
         self.inputs: dict[str, tuple[int | str, ...]] = {

@@ -68,3 +68,32 @@ def test_missing_and_corrupt_files(tmp_path) -> None:
     bad.write_bytes(b"garbage")
     with pytest.raises(PrtError, match="cannot load"):
         OrtGraph(bad)
+
+
+def test_devices(matmul_onnx) -> None:
+    """CPU always; an unknown device or CUDA without onnxruntime-gpu is a one-line PrtError."""
+    from prt_torch.runtime.session import cuda_available, providers_for
+
+    path, w = matmul_onnx
+    assert providers_for("cpu") == ["CPUExecutionProvider"]
+    with pytest.raises(PrtError, match="unknown device"):
+        OrtGraph(path, device="tpu")
+    if not cuda_available():
+        with pytest.raises(PrtError, match="onnxruntime-gpu"):
+            OrtGraph(path, device="cuda")
+
+
+def test_cuda_matches_numpy(matmul_onnx) -> None:
+    from prt_torch.runtime.session import cuda_available
+
+    path, w = matmul_onnx
+    if not cuda_available():
+        pytest.skip("no onnxruntime CUDA provider here (needs onnxruntime-gpu and a GPU)")
+    try:
+        g = OrtGraph(path, device="cuda")
+    except PrtError as exc:
+        pytest.skip(f"CUDA provider present but unusable: {exc}")
+    c = OrtGraph(path)
+    feeds = {n: np.random.default_rng(0).standard_normal([d if isinstance(d, int) else 3 for d in s])
+             .astype(np.float32) for n, s in c.inputs.items()}
+    np.testing.assert_allclose(g.run(feeds)["out"], feeds["x"] @ w + feeds["b"], rtol=1e-4, atol=1e-5)

@@ -4,6 +4,11 @@ The exported kind runs the shipped ``visibility.onnx`` (what ``prt play`` runs);
 its :class:`prt_torch.export.graphs.VisibilityGraph` exported into the run's compare directory with the export
 package's :func:`prt_torch.export.onnx_file.export_onnx` (re-exported when its model file is newer), so every
 learned method is timed on the same run-time path.
+
+``learned_<kind>_<precision>`` (``fp32``, ``fp16``, ``int8``; :data:`prt_torch.export.graphs.PRECISIONS`): the
+exported kind's visibility graph at the OTHER weight precisions than the shipped one (``learned_<kind>`` is the
+shipped graph at the run's precision, ``export.json`` ``precision``), so the accuracy and speed cost of a precision
+are rows of the same table.
 """
 
 from __future__ import annotations
@@ -19,11 +24,19 @@ class Learned(MethodBase):
     """A trained kind (``kind``) through onnxruntime."""
 
     kind: ClassVar[str] = ""
+    #: the weight precision of the graph (``""``: the shipped graph's, whatever it is)
+    precision: ClassVar[str] = ""
     output = "visibility"
 
     @classmethod
     def available(cls, run: CompareRun) -> bool:
-        return cls.kind in run.model_meta.get("kinds", []) and run.run.model_path(cls.kind).is_file()
+        if not (cls.kind in run.model_meta.get("kinds", []) and run.run.model_path(cls.kind).is_file()):
+            return False
+        if not cls.precision:
+            return True
+        exp = run.export_meta or {}  # precision variants: of the exported kind, other than the shipped precision
+        return exp.get("model_kind") == cls.kind and exp.get("precision", "fp32") != cls.precision \
+            and run.model_meta.get("output_pca", "cluster") == "cluster"  # per-cluster bases: the ones quantised
 
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
         from prt_torch.export.onnx_file import initializer_bytes
@@ -32,7 +45,9 @@ class Learned(MethodBase):
 
         exp = run.export_meta or {}
         shipped = run.run.graph_path("visibility")
-        if exp.get("model_kind") == self.kind and shipped.is_file() and \
+        self.graph_precision = self.precision or (exp.get("precision", "fp32") if exp.get("model_kind") == self.kind
+                                                  else "fp32")
+        if not self.precision and exp.get("model_kind") == self.kind and shipped.is_file() and \
                 exp.get("model_sha256") == file_sha256(run.run.model_path(self.kind)):
             path, self.source = shipped, "shipped"
         else:
@@ -40,24 +55,28 @@ class Learned(MethodBase):
         self.path = path
         self.graph = OrtGraph(path, threads=run.threads)
         self._bytes = initializer_bytes(path)
-        self.runtime = f"onnxruntime ({run.run.relative(path)}, {self.source})"
+        self.runtime = f"onnxruntime ({run.run.relative(path)}, {self.source}, {self.graph_precision})"
 
     def _export(self, run: CompareRun) -> Any:
         import torch
 
         from prt_torch.export.graphs import VisibilityGraph
-        from prt_torch.export.onnx_file import export_onnx
+        from prt_torch.export.onnx_file import export_onnx, read_metadata
+        from prt_torch.export.run import BASIS_PATTERN
 
-        path = run.run.compare_graph_path(self.kind)
+        prec = self.precision or "fp32"
+        path = run.run.compare_graph_path(self.kind if not self.precision else f"{self.kind}_{prec}")
         model_file = run.run.model_path(self.kind)
-        if path.is_file() and path.stat().st_mtime >= model_file.stat().st_mtime:
+        if path.is_file() and path.stat().st_mtime >= model_file.stat().st_mtime \
+                and read_metadata(path).get("prt.precision", "fp32") == prec:
             return path
         path.parent.mkdir(parents=True, exist_ok=True)
         model = run.run.model(self.kind)
-        graph = VisibilityGraph(model).eval()
+        graph = VisibilityGraph(model, precision=prec).eval()
         example = torch.zeros(1, model.n_features)
         export_onnx(graph, [example], path, ("pose",), ("visibility",), {"pose": {0: "B"}, "visibility": {0: "B"}},
-                    metadata={"prt.graph": "visibility", "prt.model_kind": self.kind})
+                    metadata={"prt.graph": "visibility", "prt.model_kind": self.kind, "prt.precision": prec},
+                    int8_weights=BASIS_PATTERN if prec == "int8" else None)
         return path
 
     def visibility(self, batch: FrameBatch) -> np.ndarray:
@@ -67,7 +86,7 @@ class Learned(MethodBase):
         return int(self._bytes)
 
     def info(self) -> dict[str, Any]:
-        return {"kind": self.kind, "graph": self.source}
+        return {"kind": self.kind, "graph": self.source, "precision": self.graph_precision}
 
 
 @register
@@ -86,3 +105,15 @@ class LearnedQuadratic(Learned):
 class LearnedMlp(Learned):
     name = "learned_mlp"
     kind = "mlp"
+
+
+def _precision_variant(base: type[Learned], precision: str) -> type[Learned]:
+    cls = type(f"{base.__name__}{precision.capitalize()}", (base,),
+               {"name": f"{base.name}_{precision}", "precision": precision, "__module__": __name__,
+                "__doc__": f"{base.name} at {precision} weights (exported by prt compare)."})
+    return register(cls)
+
+
+for _base in (LearnedLinear, LearnedQuadratic, LearnedMlp):
+    for _p in ("fp32", "fp16", "int8"):
+        _precision_variant(_base, _p)
