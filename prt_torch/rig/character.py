@@ -20,6 +20,7 @@ from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path
 from prt_torch.rig.clip import Clip
 from prt_torch.rig.features import pose_features
+from prt_torch.rig.material import Material
 from prt_torch.rig.skeleton import check_parents, forward_kinematics
 from prt_torch.rig.skinning import check_skin_weights, dense_weights, skin
 
@@ -64,6 +65,10 @@ class Character:
     * ``joint_limits``: optional ``(J, 3, 2)`` radians, per joint ``[min, max]`` of the bind-relative
       angles ``(a_x, a_y, a_z)`` composed as ``R_bind @ R_x(a_x) @ R_z(a_z) @ R_y(a_y)`` (used by
       :func:`prt_torch.rig.random_pose.random_poses`; ``None`` for loaded assets)
+    * ``uv``: optional ``(T, 3, 2)`` float32 texture coordinates per triangle corner (glTF ``TEXCOORD_0``;
+      per corner because welding merges vertices across UV seams)
+    * ``material``: optional :class:`prt_torch.rig.material.Material` (base colour, roughness, metallic);
+      ``None`` means :data:`prt_torch.rig.material.DEFAULT_MATERIAL`. Neither enters :meth:`content_hash`.
     """
 
     name: str
@@ -78,6 +83,8 @@ class Character:
     weights: np.ndarray
     clips: dict[str, Clip] = field(default_factory=dict)
     joint_limits: np.ndarray | None = None
+    uv: np.ndarray | None = None
+    material: Material | None = None
 
     def __post_init__(self) -> None:
         self.parents = check_parents(self.parents)
@@ -110,6 +117,13 @@ class Character:
             check(lim.shape == (j, 3, 2), f"joint limits must be ({j}, 3, 2), got {lim.shape}")
             check(bool(np.all(lim[..., 0] <= lim[..., 1])), "joint limits must have min <= max")
             self.joint_limits = lim
+        if self.uv is not None:
+            uv = np.asarray(self.uv, dtype=np.float32)
+            check(uv.shape == (len(self.faces), 3, 2), f"uv must be ({len(self.faces)}, 3, 2), got {uv.shape}")
+            check(bool(np.all(np.isfinite(uv))), "uv contains NaN or inf")
+            self.uv = uv
+        check(self.material is None or isinstance(self.material, Material),
+              f"material must be a Material, got {type(self.material).__name__}")
         self._dense_w: np.ndarray | None = None
         self._dense_wt: np.ndarray | None = None
 
@@ -189,7 +203,8 @@ class Character:
         return Character(self.name, list(self.joint_names), self.parents.copy(), s @ self.bind_local @ s_inv,
                          s @ self.inverse_bind @ s_inv, self.rest_vertices * np.float32(factor),
                          self.rest_normals.copy(), self.faces.copy(), self.joints.copy(), self.weights.copy(), clips,
-                         None if self.joint_limits is None else self.joint_limits.copy())
+                         None if self.joint_limits is None else self.joint_limits.copy(),
+                         None if self.uv is None else self.uv.copy(), self.material)
 
     # -- identity & persistence ----------------------------------------------------------------
     def content_hash(self) -> str:
@@ -216,6 +231,12 @@ class Character:
         }
         if self.joint_limits is not None:
             arrays["joint_limits"] = self.joint_limits
+        if self.uv is not None:  # optional keys: files without them still load (no material, no UVs)
+            arrays["uv"] = self.uv
+        if self.material is not None:
+            arrays["material"] = np.array(self.material.to_json())
+            if self.material.texture is not None:
+                arrays["material_texture"] = self.material.texture
         for i, n in enumerate(names):
             arrays[f"clip_{i}"] = self.clips[n].local
         buf = io.BytesIO()
@@ -257,4 +278,6 @@ class Character:
                                                                                        strict=True))}
         return cls(meta["name"], meta["joint_names"], data["parents"], data["bind_local"], data["inverse_bind"],
                    data["rest_vertices"], data["rest_normals"], data["faces"], data["joints"], data["weights"],
-                   clips, data.get("joint_limits"))
+                   clips, data.get("joint_limits"), data.get("uv"),
+                   Material.from_json(str(data["material"]), data.get("material_texture"))
+                   if "material" in data else None)

@@ -59,6 +59,7 @@ import numpy as np
 from prt_torch.errors import PrtError, check
 from prt_torch.rig.character import Character
 from prt_torch.rig.clip import Clip
+from prt_torch.rig.material import Material
 from prt_torch.rig.mesh import vertex_normals, weld
 from prt_torch.rig.rotations import Y_UP_TO_Z_UP, matrix_to_quat, quat_to_matrix, slerp, trs_matrix
 
@@ -85,6 +86,7 @@ _SEMANTICS: dict[str, tuple[tuple[str, ...], tuple[int, ...], bool | None]] = {
     "JOINTS_1": (("VEC4",), (5121, 5123), False),
     "WEIGHTS_0": (("VEC4",), (5126, 5121, 5123), None),
     "WEIGHTS_1": (("VEC4",), (5126, 5121, 5123), None),
+    "TEXCOORD_0": (("VEC2",), (5126, 5121, 5123), None),
 }
 
 
@@ -642,7 +644,7 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
             bind_local[j] = np.linalg.solve(bind_world[p], bind_world[j])
 
     # -- geometry ---------------------------------------------------------------------------------
-    pos_l, nrm_l, jnt_l, wgt_l, face_l = [], [], [], [], []
+    pos_l, nrm_l, jnt_l, wgt_l, face_l, uv_l, mat_l = [], [], [], [], [], [], []
     have_normals = True
     offset = 0
     for mi in mesh_nodes:
@@ -667,6 +669,8 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
             check(idx.size % 3 == 0, f"{path.name}: triangle primitive index count is not a multiple of 3")
             check(bool(np.all(idx < p.shape[0])), f"{path.name}: triangle indices out of range")
             pos_l.append(p)
+            uv_l.append(reader.read(at.TEXCOORD_0) if getattr(at, "TEXCOORD_0", None) is not None else None)
+            mat_l.append(prim.material)
             jnt_l.append(jt)
             wgt_l.append(wt)
             face_l.append(idx.reshape(-1, 3) + offset)
@@ -743,5 +747,67 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
         clips[cname] = Clip(cname, fps, local)
 
     jname = [nodes[n].name if isinstance(nodes[n].name, str) and nodes[n].name else f"joint_{n}" for n in jnodes]
+    material, uv = _material_and_uv(gltf, reader, path, mat_l, uv_l, pos_l, faces, faces_w, index)
     return Character(name or path.stem, jname, parents, bind_local, inverse_bind, pos_w.astype(np.float32),
-                     nrm_w.astype(np.float32), faces_w, jnt_w, wgt_w.astype(np.float32), clips)
+                     nrm_w.astype(np.float32), faces_w, jnt_w, wgt_w.astype(np.float32), clips, uv=uv,
+                     material=material)
+
+
+def _material_and_uv(gltf: Any, reader: _Reader, path: Path, mat_l: list[Any], uv_l: list[Any],
+                     pos_l: list[np.ndarray], faces: np.ndarray, faces_w: np.ndarray, index: np.ndarray
+                     ) -> tuple[Material | None, np.ndarray | None]:
+    """The first primitive's ``pbrMetallicRoughness`` material (base colour factor + texture, metallic,
+    roughness) and per-corner ``TEXCOORD_0`` of the welded faces ``(T', 3, 2)`` (``None`` without UVs)."""
+    mi = next((m for m in mat_l if m is not None), None)
+    if mi is None:
+        return None, None
+    mats = gltf.materials or []
+    check(isinstance(mi, int) and 0 <= mi < len(mats), f"{path.name}: primitive material {mi} out of range")
+    mat = mats[mi]
+    pbr = mat.pbrMetallicRoughness
+    factor = (1.0, 1.0, 1.0, 1.0) if pbr is None or pbr.baseColorFactor is None else pbr.baseColorFactor
+    metallic = 1.0 if pbr is None or pbr.metallicFactor is None else pbr.metallicFactor
+    roughness = 1.0 if pbr is None or pbr.roughnessFactor is None else pbr.roughnessFactor
+    texture = None
+    info = None if pbr is None else pbr.baseColorTexture
+    if info is not None and all(u is not None for u in uv_l) and (info.texCoord or 0) == 0:
+        texture = _read_image(gltf, reader, path, info.index)
+    uv = None
+    if texture is not None:
+        uv_all = np.concatenate(uv_l)  # per original vertex; faces index it
+        # welding keeps faces (dropping degenerate ones) in order: recover each kept face's original corners
+        mapped = index[faces]
+        ok = (mapped[:, 0] != mapped[:, 1]) & (mapped[:, 1] != mapped[:, 2]) & (mapped[:, 0] != mapped[:, 2])
+        check(int(ok.sum()) == len(faces_w), f"{path.name}: face/UV bookkeeping mismatch after welding")
+        uv = uv_all[faces[ok]].astype(np.float32)
+    m = Material(str(mat.name) if isinstance(mat.name, str) and mat.name else f"material_{mi}",
+                 tuple(float(x) for x in factor), float(np.clip(metallic, 0, 1)), float(np.clip(roughness, 0, 1)),
+                 texture)
+    return m, uv
+
+
+def _read_image(gltf: Any, reader: _Reader, path: Path, tex_index: Any) -> np.ndarray | None:
+    """RGB(A) uint8 pixels of texture ``tex_index`` (an image in a buffer view, PNG/JPEG), or ``None`` when the
+    image is external or undecodable (the material then keeps only its factor)."""
+    import cv2
+
+    texs = gltf.textures or []
+    if not (isinstance(tex_index, int) and 0 <= tex_index < len(texs)) or texs[tex_index].source is None:
+        return None
+    imgs = gltf.images or []
+    src = texs[tex_index].source
+    check(isinstance(src, int) and 0 <= src < len(imgs), f"{path.name}: texture {tex_index} image out of range")
+    img = imgs[src]
+    if img.bufferView is None:
+        return None
+    view = gltf.bufferViews[img.bufferView]
+    data = reader.buffers[view.buffer]
+    start = view.byteOffset or 0
+    check(start + view.byteLength <= len(data), f"{path.name}: image {src} reads past the end of its buffer")
+    raw = np.frombuffer(data, np.uint8, count=view.byteLength, offset=start)
+    pix = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
+    if pix is None or pix.dtype != np.uint8 or pix.ndim not in (2, 3):
+        return None
+    if pix.ndim == 2:
+        pix = np.repeat(pix[..., None], 3, axis=2)
+    return np.ascontiguousarray(pix[..., 2::-1] if pix.shape[2] >= 3 else np.repeat(pix[..., :1], 3, axis=2))

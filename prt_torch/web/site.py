@@ -1,0 +1,327 @@
+"""Write the browser player's self-contained static site for an exported run (``prt web RUN --out DIR``).
+
+Site layout (every file written atomically)::
+
+    DIR/index.html, *.js, prt_shading.glsl       the page (copied from the repository's web/src)
+    DIR/vendor/three/three.module.js, three.core.js           three.js (web/node_modules, pinned)
+    DIR/vendor/ort/ort.wasm.min.mjs, ort-wasm-simd-threaded.{mjs,wasm}   onnxruntime-web, wasm backend
+    DIR/assets/manifest.json                     sizes, names, conventions, lighting presets, camera, material,
+                                                 and the offset / dtype / shape of every array in data.bin
+    DIR/assets/data.bin                          little-endian arrays (8-byte aligned), see SITE_ARRAYS
+    DIR/assets/pose_to_visibility.onnx           the run's visibility graph, byte for byte
+    DIR/assets/basecolor.png                     the material's base-colour texture (when it has one)
+
+The arrays are what :class:`prt_torch.player.posing.Poser` and the shading graph take: rest mesh, sparse
+skin weights, bind / inverse-bind transforms (float64, as the numpy FK uses them), cluster labels / axes /
+bones (vertex frames), every clip's local joint transforms (float32, rows 0..2 of each 4x4: ``(F, J, 12)``),
+the RPO catalogue (``M (k, C, C)``, ``w (k, C)`` zero-padded to the graph's ``k``), the material's per-vertex
+base colour and UVs. Lighting presets are the player's own (:func:`prt_torch.eval.shipping.shipping_lights`:
+the procedural sky and the env maps of the shared data, 3 ZH lobes each) plus any ``--env`` files.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prt_torch.errors import PrtError, check
+from prt_torch.io import atomic_path, atomic_write_bytes, atomic_write_json
+
+#: version of the site format (manifest key ``format``)
+SITE_FORMAT = "prt_torch.web/1"
+ASSETS = "assets"
+MANIFEST = "manifest.json"
+DATA = "data.bin"
+MODEL = "pose_to_visibility.onnx"
+TEXTURE = "basecolor.png"
+
+#: npm files copied into the site: (package-relative source under web/node_modules, site-relative target)
+VENDOR_FILES = (
+    ("three/build/three.module.js", "vendor/three/three.module.js"),
+    ("three/build/three.core.js", "vendor/three/three.core.js"),
+    ("onnxruntime-web/dist/ort.wasm.min.mjs", "vendor/ort/ort.wasm.min.mjs"),
+    ("onnxruntime-web/dist/ort-wasm-simd-threaded.mjs", "vendor/ort/ort-wasm-simd-threaded.mjs"),
+    ("onnxruntime-web/dist/ort-wasm-simd-threaded.wasm", "vendor/ort/ort-wasm-simd-threaded.wasm"),
+)
+
+#: page files copied from web/src (every other file there is ignored)
+PAGE_SUFFIXES = (".html", ".js", ".mjs", ".glsl", ".css")
+
+
+def web_root() -> Path:
+    """The repository's ``web/`` folder (page sources ``src/``, pinned npm packages ``node_modules/``)."""
+    env = os.environ.get("PRT_WEB_ROOT")
+    root = Path(env) if env else Path(__file__).resolve().parents[2] / "web"
+    check((root / "src").is_dir(), f"browser player sources not found at {root}/src (run from a clone of the "
+                                   f"repository, or set PRT_WEB_ROOT)")
+    return root
+
+
+def vendor_sources(root: Path | None = None) -> list[tuple[Path, str]]:
+    """``[(source file, site path)]`` of the npm files the site needs; one-line error when not installed."""
+    root = web_root() if root is None else root
+    out = []
+    for src, dst in VENDOR_FILES:
+        p = root / "node_modules" / src
+        check(p.is_file(), f"{p} missing: run `npm ci` in {root} (scripts/setup.sh does)")
+        out.append((p, dst))
+    return out
+
+
+@dataclass
+class _Blob:
+    """Arrays packed into one little-endian buffer, 8-byte aligned, with their manifest entries."""
+
+    parts: list[bytes] = field(default_factory=list)
+    entries: dict[str, dict[str, Any]] = field(default_factory=dict)
+    size: int = 0
+
+    def add(self, name: str, a: np.ndarray, dtype: str) -> None:
+        check(name not in self.entries, f"duplicate site array {name!r}")
+        a = np.ascontiguousarray(np.asarray(a).astype(np.dtype(dtype).newbyteorder("<")))
+        check(bool(np.isfinite(a).all()) if a.dtype.kind == "f" else True, f"site array {name!r} has NaN or Inf")
+        raw = a.tobytes()
+        self.entries[name] = {"offset": self.size, "dtype": dtype, "shape": list(a.shape), "bytes": len(raw)}
+        pad = (-len(raw)) % 8
+        self.parts.append(raw + b"\0" * pad)
+        self.size += len(raw) + pad
+
+    def bytes(self) -> bytes:
+        return b"".join(self.parts)
+
+
+def _lighting_entry(name: str, lighting: Any) -> dict[str, Any]:
+    return {"name": name, "source": str(lighting.source), "rel_error": float(lighting.rel_error),
+            "dirs": np.asarray(lighting.dirs, np.float32).astype(float).tolist(),
+            "coeffs": np.asarray(lighting.coeffs, np.float32).astype(float).tolist()}
+
+
+def site_lightings(order: int, env: list[str] | tuple[str, ...] = (), presets: bool = True) -> dict[str, Any]:
+    """``{name: Lighting}``: the player's presets (sky, shared env maps) and the ``env`` files (named by stem)."""
+    from prt_torch.eval.shipping import shared_data_dir, shipping_lights
+    from prt_torch.player.lighting import load_lighting
+
+    out = dict(shipping_lights(order, shared_data_dir() if presets else None))
+    for e in env:
+        p = Path(e)
+        out[p.stem] = load_lighting(p, order)
+    return out
+
+
+def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tuple[str, ...] = (),
+               material_rpo: bool = True, motions: tuple[str, ...] = (), env_presets: bool = True) -> dict[str, Any]:
+    """Write the site of exported run ``run`` into ``out`` (created; existing site files are replaced).
+
+    Args:
+        run: an exported run directory (anything ``prt play`` plays).
+        out: the site directory.
+        env: extra HDR environment maps offered as lighting presets.
+        motions: motion files (BVH / glTF) retargeted onto the character (:func:`prt_torch.rig.retarget.retarget_file`,
+            as ``prt play --motion`` does), offered as clips named ``motion:<stem>``.
+        env_presets: offer the shared data's env maps (:data:`prt_torch.eval.shipping.ENVMAPS`) besides the sky.
+        material_rpo: add the character material's own RPO (Cook-Torrance with its roughness, cached) to the
+            catalogue as ``material`` (needs the ``export`` extra: torch; skipped without it).
+
+    Returns:
+        the manifest (also written to ``out/assets/manifest.json``).
+    """
+    from prt_torch.player.bundle import RunBundle
+    from prt_torch.player.lighting import hemisphere_visibility
+    from prt_torch.player.material import vertex_base_color
+    from prt_torch.player.player import CAMERA_AZIMUTH, CAMERA_DISTANCE, CAMERA_ELEVATION, camera_target
+    from prt_torch.player.tonemap import GAMMA
+    from prt_torch.rig.material import character_material
+
+    root = web_root()
+    vendor = vendor_sources(root)
+    bundle = RunBundle(run, threads=1, graphs=("visibility",))
+    ch = bundle.character
+    order, c = bundle.order, bundle.order ** 2
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    blob = _Blob()
+    blob.add("rest_vertices", ch.rest_vertices, "float32")
+    blob.add("rest_normals", ch.rest_normals, "float32")
+    blob.add("faces", ch.faces, "uint32")
+    blob.add("skin_joints", ch.joints, "uint32")
+    blob.add("skin_weights", ch.weights, "float32")
+    blob.add("bind_local", ch.bind_local, "float64")
+    blob.add("inverse_bind", ch.inverse_bind, "float64")
+    blob.add("cluster", bundle.cluster, "uint32")
+    blob.add("cluster_axis", bundle.cluster_axis, "float32")
+    blob.add("cluster_bone", bundle.cluster_bone, "uint32")
+    clips = []
+    sources = [(name, ch.clip(name)) for name in ch.clips]
+    if motions:
+        from prt_torch.rig.retarget import retarget_file
+
+        for path in motions:
+            motion, _ = retarget_file(path, ch)
+            sources.append((f"motion:{motion.name}", motion))
+    for name, clip in sources:
+        local = np.asarray(clip.local, dtype=np.float64)
+        check(local.ndim == 4 and local.shape[1:] == (ch.num_joints, 4, 4), f"clip {name!r}: bad local transforms")
+        key = f"clip:{name}"
+        blob.add(key, local[:, :, :3, :].reshape(len(local), ch.num_joints, 12), "float32")
+        clips.append({"name": name, "fps": float(clip.fps), "frames": int(len(local)), "array": key})
+    check(bool(clips), f"{bundle.run_dir}: the character has no clips to play")
+    names = list(bundle.brdf_names)
+    rpo_entries = []
+    rpos = [(n, bundle.rpo(n), bundle.run.rpo_path(n)) for n in names]
+    material = character_material(ch)
+    if material_rpo:
+        mat = _material_rpo(material, order, bundle.n_terms, bundle.run)
+        if mat is not None:
+            from prt_torch.player.bundle import load_rpo_tensors
+
+            rpos.append(("material", load_rpo_tensors(mat, order, bundle.n_terms), mat))
+    from prt_torch.brdf.rpo import RPO
+
+    for name, r, path in rpos:
+        u = np.zeros((bundle.n_terms, c), np.float32)
+        u_file = np.asarray(RPO.load(path).u, np.float32)
+        u[:len(u_file)] = u_file
+        blob.add(f"rpo:{name}:M", r.M, "float32")
+        blob.add(f"rpo:{name}:u", u, "float32")
+        blob.add(f"rpo:{name}:w", r.w, "float32")
+        rpo_entries.append({"name": name, "tint": r.tint.astype(float).tolist(), "M": f"rpo:{name}:M",
+                            "u": f"rpo:{name}:u", "w": f"rpo:{name}:w"})
+    base = vertex_base_color(ch)
+    blob.add("base_color", base if base is not None else np.ones((ch.num_vertices, 3), np.float32), "float32")
+    texture = None
+    if material.texture is not None and ch.uv is not None:
+        blob.add("uv", ch.uv, "float32")
+        import cv2
+
+        ok, png = cv2.imencode(".png", np.ascontiguousarray(material.texture[..., :3][..., ::-1]))
+        check(bool(ok), "could not encode the base-colour texture as PNG")
+        atomic_write_bytes(out / ASSETS / TEXTURE, png.tobytes())
+        texture = TEXTURE
+    lights = site_lightings(order, tuple(env), env_presets)
+    tonemaps = player_tonemaps(bundle.run_dir, lights, names[0], ch, clips[0]["name"])
+    data = blob.bytes()
+    atomic_write_bytes(out / ASSETS / DATA, data)
+    model_path = bundle.run.graph_path("visibility")
+    atomic_write_bytes(out / ASSETS / MODEL, model_path.read_bytes())
+    center, radius = camera_target(ch.rest_vertices)
+    manifest: dict[str, Any] = {
+        "format": SITE_FORMAT,
+        "name": ch.name,
+        "run": str(bundle.run_dir),
+        "n_vertices": int(ch.num_vertices),
+        "n_faces": int(len(ch.faces)),
+        "n_joints": int(ch.num_joints),
+        "joint_names": list(ch.joint_names),
+        "parents": [int(p) for p in ch.parents],
+        "order": order,
+        "n_coeffs": c,
+        "n_features": bundle.n_features,
+        "n_terms": bundle.n_terms,
+        "below_horizon": bundle.below_horizon,
+        "gaunt": gaunt_table(order),
+        "unshadowed": hemisphere_visibility(order, bundle.below_horizon).astype(float).tolist(),
+        "model": {"file": MODEL, "input": "pose", "output": "visibility",
+                  "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest()},
+        "data": {"file": DATA, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest(),
+                 "arrays": blob.entries},
+        "clips": clips,
+        "rpos": rpo_entries,
+        "default_brdf": names[0],
+        "lights": [{**_lighting_entry(n, lt), "tonemap": tonemaps[n]} for n, lt in lights.items()],
+        "camera": {"center": center.astype(float).tolist(), "radius": radius, "azimuth": CAMERA_AZIMUTH,
+                   "elevation": CAMERA_ELEVATION, "distance": CAMERA_DISTANCE, "view_angle": 30.0,
+                   "up": [0.0, 0.0, 1.0], "width": 640, "height": 480},
+        "background": [0.08, 0.08, 0.1],
+        "tonemap": {"middle": 0.3, "white_percentile": 99.5, "gamma": GAMMA},
+        "material": {**material.summary(), "texture": texture},
+        "conventions": bundle.meta.get("conventions", ""),
+    }
+    atomic_write_json(out / ASSETS / MANIFEST, manifest)
+    _copy_page(root, out, vendor)
+    return manifest
+
+
+def gaunt_table(order: int) -> dict[str, list[Any]]:
+    """The non-zero real Gaunt coefficients ``Gamma_ijk = int y_i y_j y_k`` of ``order`` (every index
+    permutation listed): ``{"i", "j", "k", "g"}`` lists (:func:`prt_torch.sh.product.gaunt_tensor`)."""
+    from prt_torch.sh.product import gaunt_tensor
+
+    d = gaunt_tensor(order).dense()
+    i, j, k = np.nonzero(np.abs(d) > 1e-12)
+    return {"i": i.tolist(), "j": j.tolist(), "k": k.tolist(), "g": d[i, j, k].astype(float).tolist()}
+
+
+def site_local(character: Any, clip: str, frames: Any) -> np.ndarray:
+    """``(B, J, 4, 4)`` float64 local transforms of ``clip`` at ``frames`` exactly as the site stores them
+    (rows 0..2 rounded to float32, row 3 = (0, 0, 0, 1)): the Python side of every page comparison uses these."""
+    local = np.asarray(character.clip(clip).local, dtype=np.float64)[np.atleast_1d(frames)]
+    out = np.zeros_like(local)
+    out[:, :, :3, :] = local[:, :, :3, :].astype(np.float32)
+    out[:, :, 3, 3] = 1.0
+    return out
+
+
+def player_tonemaps(run: Path, lights: dict[str, Any], brdf: str, character: Any, clip: str) -> dict[str, Any]:
+    """``{light: {exposure, white}}``: the tone map the Python player fixes from the first frame of ``clip``
+    (:func:`prt_torch.player.tonemap.auto_tonemap` of its radiance times the base colour) under each lighting."""
+    from prt_torch.player.player import Player
+
+    p = Player(run, brdf=brdf, threads=1, graph="split")
+    try:
+        local = site_local(character, clip, 0)
+        out = {}
+        for name, lt in lights.items():
+            p.lighting = lt
+            p.rotate_light(0.0)
+            p.exposure = None
+            _, rad = p.compute(local)
+            p.colors(rad[0])
+            out[name] = {"exposure": float(p.exposure.exposure), "white": float(p.exposure.white)}
+        return out
+    finally:
+        p.close()
+
+
+def _material_rpo(material: Any, order: int, n_terms: int, run: Any = None) -> Path | None:
+    """The material's Cook-Torrance RPO file, cached in the run (the Python player's: the one rule,
+    :func:`prt_torch.rig.material.material_rpo_file`), or ``None`` when it is not cached and cannot be built
+    (no scikit-learn: a player-only install)."""
+    from prt_torch.rig.material import material_rpo_file
+
+    try:
+        return material_rpo_file(material, order, n_terms, run=run)
+    except PrtError:
+        return None
+
+
+def _copy_page(root: Path, out: Path, vendor: list[tuple[Path, str]]) -> None:
+    for p in sorted((root / "src").iterdir()):
+        if p.is_file() and p.suffix in PAGE_SUFFIXES:
+            atomic_write_bytes(out / p.name, p.read_bytes())
+    for src, dst in vendor:
+        target = out / dst
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if target.is_file() and target.stat().st_size == src.stat().st_size and \
+                target.stat().st_mtime >= src.stat().st_mtime:
+            continue  # unchanged npm file (the wasm binary is 14 MB)
+        with atomic_path(target) as tmp:
+            shutil.copyfile(src, tmp)
+
+
+def read_manifest(site: str | os.PathLike[str]) -> dict[str, Any]:
+    """The manifest of a written site (one-line error when missing or not a site)."""
+    p = Path(site) / ASSETS / MANIFEST
+    check(p.is_file(), f"not a prt web site (no {ASSETS}/{MANIFEST}): {site}")
+    try:
+        m = json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise PrtError(f"{p}: unreadable manifest ({exc})") from None
+    check(isinstance(m, dict) and m.get("format") == SITE_FORMAT, f"{p}: not a {SITE_FORMAT} manifest")
+    return m

@@ -1,0 +1,59 @@
+"""The site format: every array of data.bin read back through the manifest equals the run's own data; motion files
+become clips; the site serves on 127.0.0.1 only."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+def _array(site: Path, m: dict, name: str) -> np.ndarray:
+    e = m["data"]["arrays"][name]
+    raw = (site / "assets" / m["data"]["file"]).read_bytes()[e["offset"]:e["offset"] + e["bytes"]]
+    return np.frombuffer(raw, np.dtype(e["dtype"]).newbyteorder("<")).reshape(e["shape"])
+
+
+def test_site_arrays_round_trip_and_motion_clip(tiny_run: Path, shared_data: Path, tmp_path: Path) -> None:
+    from prt_torch.rundir import RunDir
+    from prt_torch.web.serve import HOST, SiteServer
+    from prt_torch.web.site import read_manifest, site_local, write_site
+
+    site = tmp_path / "site"
+    write_site(tiny_run, site, material_rpo=False, env_presets=False,
+               motions=(str(shared_data / "motion" / "01_01.bvh"),))
+    m = read_manifest(site)
+    data = (site / "assets" / m["data"]["file"]).read_bytes()
+    assert hashlib.sha256(data).hexdigest() == m["data"]["sha256"] and len(data) == m["data"]["bytes"]
+    ch = RunDir(tiny_run).character()
+    np.testing.assert_array_equal(_array(site, m, "rest_vertices"), ch.rest_vertices)
+    np.testing.assert_array_equal(_array(site, m, "faces"), ch.faces)
+    np.testing.assert_array_equal(_array(site, m, "inverse_bind"), ch.inverse_bind)
+    clip = m["clips"][1]
+    local = _array(site, m, clip["array"])
+    want = site_local(ch, clip["name"], np.arange(clip["frames"]))[:, :, :3, :].reshape(clip["frames"], -1, 12)
+    np.testing.assert_array_equal(local, want)
+    names = [c["name"] for c in m["clips"]]
+    assert names[:len(ch.clips)] == list(ch.clips) and names[-1] == "motion:01_01" and m["clips"][-1]["frames"] > 10
+    assert [r["name"] for r in m["rpos"]] == sorted(RunDir(tiny_run).export_meta()["rpo_files"])
+    assert m["lights"][0]["name"] == "sky" and len(m["lights"][0]["dirs"]) == 3
+    assert m["lights"][0]["tonemap"]["exposure"] > 0
+    with SiteServer(site) as srv:
+        assert srv.url.startswith(f"http://{HOST}:") and HOST == "127.0.0.1"
+
+
+def test_site_without_npm_packages_is_one_line_error(tiny_run: Path, tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    from prt_torch.errors import PrtError
+    from prt_torch.web.site import web_root, write_site
+
+    fake = tmp_path / "web"
+    (fake / "src").mkdir(parents=True)
+    for p in (web_root() / "src").iterdir():
+        (fake / "src" / p.name).write_bytes(p.read_bytes())
+    monkeypatch.setenv("PRT_WEB_ROOT", str(fake))
+    with pytest.raises(PrtError, match="npm ci"):
+        write_site(tiny_run, tmp_path / "site")
+    assert not (tmp_path / "site").exists()  # checked before anything is written

@@ -1,0 +1,429 @@
+// The browser player: assets -> posing (posing.js) -> onnxruntime-web visibility -> RPO shading (prt_shading.glsl).
+// window.prt is the page's scripting interface (used by `prt web --check` and tests/web).
+import * as THREE from 'three';
+import * as ort from 'onnxruntime-web';
+import { Poser } from './posing.js';
+import { makeMaterial, rpoTexture, stateLayout } from './shading.js';
+
+const $ = (id) => document.getElementById(id);
+const ASSETS = 'assets/';
+const DTYPES = { float32: Float32Array, float64: Float64Array, uint32: Uint32Array, int32: Int32Array, uint8: Uint8Array };
+
+class AssetError extends Error {}
+
+function showError(message) {
+  const el = $('error');
+  el.hidden = false;
+  el.textContent = `The player could not start:\n\n${message}`;
+  $('stats').textContent = 'error';
+  window.prt.error = String(message);
+}
+
+async function fetchOk(name, what) {
+  let res;
+  try {
+    res = await fetch(ASSETS + name);
+  } catch (e) {
+    throw new AssetError(`${what} (${ASSETS}${name}) could not be fetched: ${e.message}`);
+  }
+  if (!res.ok) throw new AssetError(`${what} (${ASSETS}${name}) is missing: HTTP ${res.status} ${res.statusText}`);
+  return res;
+}
+
+function need(cond, message) {
+  if (!cond) throw new AssetError(message);
+}
+
+async function loadManifest() {
+  const res = await fetchOk('manifest.json', 'the run manifest');
+  const text = await res.text();
+  let m;
+  try {
+    m = JSON.parse(text);
+  } catch (e) {
+    throw new AssetError(`the run manifest (${ASSETS}manifest.json) is malformed JSON: ${e.message}`);
+  }
+  need(m && typeof m === 'object', 'the run manifest is not a JSON object');
+  need(m.format === 'prt_torch.web/1', `the run manifest has format ${JSON.stringify(m.format)}, expected "prt_torch.web/1" (re-run \`prt web\`)`);
+  for (const key of ['n_vertices', 'order', 'n_terms', 'n_features', 'parents', 'clips', 'rpos', 'lights', 'camera', 'data', 'model', 'unshadowed', 'gaunt']) {
+    need(key in m, `the run manifest has no "${key}" (re-run \`prt web\`)`);
+  }
+  need(Number.isInteger(m.order) && m.order >= 1 && m.order <= 8, `unsupported SH order ${m.order} (1..8)`);
+  need(m.clips.length > 0 && m.rpos.length > 0 && m.lights.length > 0, 'the run manifest lists no clip, BRDF or lighting');
+  return m;
+}
+
+async function loadArrays(m) {
+  const res = await fetchOk(m.data.file, 'the character data');
+  const buf = await res.arrayBuffer();
+  need(buf.byteLength === m.data.bytes, `${ASSETS}${m.data.file} has ${buf.byteLength} bytes, the manifest says ${m.data.bytes} (truncated or stale: re-run \`prt web\`)`);
+  const out = {};
+  for (const [name, e] of Object.entries(m.data.arrays)) {
+    const T = DTYPES[e.dtype];
+    need(T, `array ${name}: unknown dtype ${e.dtype}`);
+    const count = e.shape.reduce((a, b) => a * b, 1);
+    need(count * T.BYTES_PER_ELEMENT === e.bytes && e.offset % 8 === 0 && e.offset + e.bytes <= buf.byteLength,
+      `array ${name} does not fit ${ASSETS}${m.data.file} (offset ${e.offset}, ${e.bytes} bytes)`);
+    out[name] = new T(buf, e.offset, count);
+  }
+  const V = m.n_vertices;
+  for (const [name, len] of [['rest_vertices', 3 * V], ['rest_normals', 3 * V], ['cluster', V], ['base_color', 3 * V]]) {
+    need(out[name] && out[name].length === len, `array ${name} is missing or has the wrong size`);
+  }
+  return out;
+}
+
+async function loadTexture(name) {
+  const res = await fetchOk(name, 'the base-colour texture');
+  const bitmap = await createImageBitmap(await res.blob(), { imageOrientation: 'none', premultiplyAlpha: 'none', colorSpaceConversion: 'none' });
+  const tex = new THREE.Texture(bitmap);
+  tex.flipY = false; // glTF: v = 0 is the image's top row
+  tex.wrapS = tex.wrapT = THREE.RepeatWrapping;
+  tex.colorSpace = THREE.SRGBColorSpace; // SRGB8_ALPHA8: decoded to linear before filtering, as the Python player does
+  tex.needsUpdate = true;
+  return tex;
+}
+
+function cameraEye(cam, azimuth, elevation) {
+  // prt_torch.player.player.camera_eye: orbit the centre at distance * radius, in front (-y) at azimuth 0
+  const d = [Math.sin(azimuth) * Math.cos(elevation), -Math.cos(azimuth) * Math.cos(elevation), Math.sin(elevation)];
+  const r = cam.distance * cam.radius;
+  return [cam.center[0] + r * d[0], cam.center[1] + r * d[1], cam.center[2] + r * d[2]];
+}
+
+class App {
+  constructor(m, arrays, session, glsl, texture) {
+    this.m = m;
+    this.a = arrays;
+    this.session = session;
+    const V = m.n_vertices, nc = m.order * m.order;
+    this.V = V;
+    this.nc = nc;
+    const K = arrays.skin_weights.length / V;
+    this.poser = new Poser(m.parents, arrays, K);
+    need(this.poser.nFeatures === m.n_features, `the skeleton gives ${this.poser.nFeatures} pose features, the model takes ${m.n_features}`);
+    this.layout = stateLayout(V, nc);
+    this.state = new Float32Array(this.layout.width * this.layout.height * 4);
+    this.stateTex = new THREE.DataTexture(this.state, this.layout.width, this.layout.height, THREE.RGBAFormat, THREE.FloatType);
+    this.stateTex.minFilter = this.stateTex.magFilter = THREE.NearestFilter;
+    this.stateTex.generateMipmaps = false;
+    this.posed = null;
+    this.visibility = new Float32Array(V * nc);
+    // settings
+    this.clip = 0;
+    this.frame = 0;
+    this.playing = true;
+    this.lightAngle = 0;
+    this.light = 0;
+    this.brdf = Math.max(0, m.rpos.findIndex((r) => r.name === m.default_brdf));
+    this.unshadowed = false;
+    this.azimuth = m.camera.azimuth;
+    this.elevation = m.camera.elevation;
+    this.exposure = null; // {exposure, white}: fixed per lighting preset by `prt web` (the Python player's rule)
+    this.stats = { pose_ms: 0, visibility_ms: 0, render_ms: 0, step_ms: 0, fps: 0, steps: 0 };
+    this.hasTexture = Boolean(texture) && Boolean(arrays.uv);
+    this.perPixel = this.hasTexture;
+    this.initThree(glsl, texture);
+  }
+
+  initThree(glsl, texture) {
+    const m = this.m;
+    THREE.ColorManagement.enabled = false; // the shader writes display colours itself
+    const canvas = $('canvas');
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false, preserveDrawingBuffer: true });
+    this.renderer.outputColorSpace = THREE.LinearSRGBColorSpace;
+    this.renderer.setPixelRatio(1);
+    this.renderer.setSize(m.camera.width, m.camera.height, false);
+    this.renderer.debug.onShaderError = (gl, program, vs, fs) => {
+      const log = gl.getShaderInfoLog(vs) + '\n' + gl.getShaderInfoLog(fs) + '\n' + gl.getProgramInfoLog(program);
+      throw new AssetError(`the RPO shader failed to compile:\n${log}`);
+    };
+    const bg = m.background;
+    this.renderer.setClearColor(new THREE.Color(bg[0], bg[1], bg[2]), 1);
+    this.scene = new THREE.Scene();
+    this.camera = new THREE.PerspectiveCamera(m.camera.view_angle, m.camera.width / m.camera.height, 0.01 * m.camera.radius, 20 * m.camera.radius);
+    this.camera.up.set(...m.camera.up);
+    const sizes = { order: m.order, nTerms: m.n_terms, nLobes: m.lights[0].dirs.length };
+    this.matrixForm = new URLSearchParams(location.search).get('form') === 'matrix';
+    this.material = makeMaterial(glsl, sizes, this.layout, m.gaunt, this.matrixForm);
+    const u = this.material.uniforms;
+    u.u_state.value = this.stateTex;
+    u.u_unshadowedVis.value.set(m.unshadowed);
+    u.u_gamma.value = m.tonemap.gamma;
+    const mat = m.material || {};
+    u.u_baseFactor.value.set(...(mat.base_color || [1, 1, 1]).slice(0, 3));
+    u.u_baseTex.value = texture || null;
+    this.rpoTex = m.rpos.map((r) => rpoTexture(this.a[r.M], m.n_terms, this.nc));
+    // geometry: indexed (one shading per vertex); non-indexed per corner when a texture needs corner UVs
+    const g = new THREE.BufferGeometry();
+    const faces = this.a.faces, base = this.a.base_color, rest = this.a.rest_vertices;
+    if (this.hasTexture) {
+      const n = faces.length;
+      const vid = new Float32Array(n), uv = new Float32Array(2 * n), b3 = new Float32Array(3 * n), p3 = new Float32Array(3 * n);
+      for (let c = 0; c < n; c++) {
+        const v = faces[c];
+        vid[c] = v;
+        uv[2 * c] = this.a.uv[2 * c]; uv[2 * c + 1] = this.a.uv[2 * c + 1];
+        for (let e = 0; e < 3; e++) { b3[3 * c + e] = base[3 * v + e]; p3[3 * c + e] = rest[3 * v + e]; }
+      }
+      g.setAttribute('position', new THREE.BufferAttribute(p3, 3));
+      g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
+      g.setAttribute('a_uv', new THREE.BufferAttribute(uv, 2));
+      g.setAttribute('a_base', new THREE.BufferAttribute(b3, 3));
+    } else {
+      const vid = new Float32Array(this.V);
+      for (let v = 0; v < this.V; v++) vid[v] = v;
+      g.setAttribute('position', new THREE.BufferAttribute(rest, 3));
+      g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
+      g.setAttribute('a_uv', new THREE.BufferAttribute(new Float32Array(2 * this.V), 2));
+      g.setAttribute('a_base', new THREE.BufferAttribute(base, 3));
+      g.setIndex(new THREE.BufferAttribute(faces, 1));
+    }
+    this.mesh = new THREE.Mesh(g, this.material);
+    this.mesh.frustumCulled = false; // positions come from the state texture
+    this.scene.add(this.mesh);
+    this.applyBrdf();
+    this.applyLight();
+    this.applyCamera();
+  }
+
+  get clipInfo() { return this.m.clips[this.clip]; }
+
+  applyBrdf() {
+    const r = this.m.rpos[this.brdf];
+    const u = this.material.uniforms;
+    u.u_rpoM.value = this.rpoTex[this.brdf];
+    u.u_rpoW.value.set(this.a[r.w]);
+    u.u_rpoU.value.set(this.a[r.u]);
+    u.u_tint.value.set(...r.tint);
+  }
+
+  applyLight() {
+    const lt = this.m.lights[this.light];
+    const u = this.material.uniforms;
+    const c = Math.cos(this.lightAngle), s = Math.sin(this.lightAngle);
+    lt.dirs.forEach((d, k) => { // dirs @ R^T, R = rotation about z by lightAngle (Player.rotate_light)
+      u.u_lobeDir.value[k].set(c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]);
+    });
+    lt.coeffs.forEach((bands, k) => bands.forEach((rgb, l) => u.u_lobeG.value[k * this.m.order + l].set(...rgb)));
+    const tm = this.exposure || lt.tonemap;
+    u.u_exposure.value = tm.exposure;
+    u.u_white.value = tm.white;
+  }
+
+  applyCamera() {
+    const eye = cameraEye(this.m.camera, this.azimuth, this.elevation);
+    this.eye = eye;
+    this.camera.position.set(...eye);
+    this.camera.lookAt(...this.m.camera.center);
+    this.material.uniforms.u_eye.value.set(...eye);
+  }
+
+  localNow() {
+    const c = this.clipInfo;
+    return Poser.localFromClip(this.a[c.array], this.frame, this.m.n_joints);
+  }
+
+  async runVisibility(features, batch = 1) {
+    const input = new ort.Tensor('float32', features, [batch, this.m.n_features]);
+    const out = await this.session.run({ [this.m.model.input]: input });
+    return out[this.m.model.output].data;
+  }
+
+  // one step: pose the current frame, run the model, upload, render
+  async step() {
+    const t0 = performance.now();
+    const local = this.localNow();
+    const feats = this.poser.features(local);
+    const visPromise = this.unshadowed ? null : this.runVisibility(feats);
+    this.posed = this.poser.pose(local, this.posed);
+    const t1 = performance.now();
+    if (visPromise) this.visibility = await visPromise;
+    const t2 = performance.now();
+    const { P, R } = this.layout;
+    const st = this.state, pos = this.posed.positions, fr = this.posed.frames, vis = this.visibility, nc = this.nc;
+    for (let v = 0; v < this.V; v++) {
+      const o = 4 * ((Math.floor(v / R) * R * P) + (v % R) * P);
+      st[o] = pos[3 * v]; st[o + 1] = pos[3 * v + 1]; st[o + 2] = pos[3 * v + 2];
+      for (let r = 0; r < 3; r++) {
+        st[o + 4 * (r + 1)] = fr[9 * v + 3 * r];
+        st[o + 4 * (r + 1) + 1] = fr[9 * v + 3 * r + 1];
+        st[o + 4 * (r + 1) + 2] = fr[9 * v + 3 * r + 2];
+      }
+      if (!this.unshadowed) for (let i = 0; i < nc; i++) st[o + 16 + i] = vis[v * nc + i];
+    }
+    this.stateTex.needsUpdate = true;
+    const u = this.material.uniforms;
+    u.u_unshadowed.value = this.unshadowed;
+    u.u_perPixel.value = this.perPixel && this.hasTexture;
+    this.renderer.render(this.scene, this.camera);
+    if (this.syncGpu) { // wait for the draw itself, not just its submission: read one pixel back
+      const gl = this.renderer.getContext();
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, this.onePixel || (this.onePixel = new Uint8Array(4)));
+    }
+    const t3 = performance.now();
+    const s = this.stats;
+    s.pose_ms = t1 - t0; s.visibility_ms = t2 - t1; s.render_ms = t3 - t2; s.step_ms = t3 - t0; s.steps += 1;
+    return { ...s };
+  }
+
+  readPixels() {
+    const gl = this.renderer.getContext();
+    const w = gl.drawingBufferWidth, h = gl.drawingBufferHeight;
+    const px = new Uint8Array(w * h * 4);
+    gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, px);
+    let bin = '';
+    for (let i = 0; i < px.length; i += 0x8000) bin += String.fromCharCode.apply(null, px.subarray(i, i + 0x8000));
+    return { width: w, height: h, rgba: btoa(bin) };
+  }
+}
+
+// -- UI ---------------------------------------------------------------------------------------------------
+function bindUi(app) {
+  const m = app.m;
+  $('title').textContent = `${m.name} (${m.n_vertices} vertices, SH order ${m.order})`;
+  const fill = (sel, names) => { sel.innerHTML = ''; names.forEach((n, i) => sel.add(new Option(n, i))); };
+  fill($('clip'), m.clips.map((c) => c.name));
+  fill($('env'), m.lights.map((l) => l.name));
+  fill($('brdf'), m.rpos.map((r) => r.name));
+  $('brdf').value = app.brdf;
+  $('texRow').hidden = !app.hasTexture;
+  const sync = () => {
+    $('clip').value = app.clip;
+    $('frame').max = app.clipInfo.frames - 1;
+    $('frame').value = app.frame;
+    $('frameLabel').textContent = `${app.frame} / ${app.clipInfo.frames - 1}`;
+    $('play').textContent = app.playing ? 'pause' : 'play';
+    const deg = Math.round(((app.lightAngle * 180 / Math.PI) % 360 + 540) % 360 - 180);
+    $('light').value = deg;
+    $('lightLabel').textContent = `${deg}\u00b0`;
+    $('env').value = app.light;
+    $('brdf').value = app.brdf;
+    $('unshadowed').checked = app.unshadowed;
+  };
+  app.sync = sync;
+  $('clip').onchange = (e) => { app.clip = Number(e.target.value); app.frame = 0; sync(); };
+  $('frame').oninput = (e) => { app.frame = Number(e.target.value); app.playing = false; sync(); };
+  $('play').onclick = () => { app.playing = !app.playing; sync(); };
+  $('light').oninput = (e) => { app.lightAngle = Number(e.target.value) * Math.PI / 180; app.applyLight(); sync(); };
+  $('env').onchange = (e) => { app.light = Number(e.target.value); app.applyLight(); sync(); };
+  $('brdf').onchange = (e) => { app.brdf = Number(e.target.value); app.applyBrdf(); sync(); };
+  $('unshadowed').onchange = (e) => { app.unshadowed = e.target.checked; sync(); };
+  $('perPixel').onchange = (e) => { app.perPixel = e.target.checked; };
+  // keyboard shortcuts of the Python player (Player._bind_keys) plus playback keys
+  window.addEventListener('keydown', (e) => {
+    if (e.target instanceof HTMLInputElement && e.target.type !== 'checkbox' && e.target.type !== 'range') return;
+    const k = e.key;
+    if (k === 'l') { app.lightAngle += 15 * Math.PI / 180; app.applyLight(); }
+    else if (k === 'b') { app.brdf = (app.brdf + 1) % m.rpos.length; app.applyBrdf(); }
+    else if (k === 'e') { app.light = (app.light + 1) % m.lights.length; app.applyLight(); }
+    else if (k === 'u') app.unshadowed = !app.unshadowed;
+    else if (k === ' ') app.playing = !app.playing;
+    else if (k === ',') { app.playing = false; app.frame = Math.max(0, app.frame - 1); }
+    else if (k === '.') { app.playing = false; app.frame = Math.min(app.clipInfo.frames - 1, app.frame + 1); }
+    else if (k === 'ArrowLeft') { app.azimuth -= 10 * Math.PI / 180; app.applyCamera(); }
+    else if (k === 'ArrowRight') { app.azimuth += 10 * Math.PI / 180; app.applyCamera(); }
+    else if (k === 'ArrowUp') { app.elevation = Math.min(1.2, app.elevation + 8 * Math.PI / 180); app.applyCamera(); }
+    else if (k === 'ArrowDown') { app.elevation = Math.max(-1.2, app.elevation - 8 * Math.PI / 180); app.applyCamera(); }
+    else if (k === 'r') { app.azimuth = m.camera.azimuth; app.elevation = m.camera.elevation; app.applyCamera(); }
+    else return;
+    e.preventDefault();
+    sync();
+  });
+  sync();
+}
+
+function loop(app) {
+  let last = performance.now(), acc = 0, frames = 0, fpsT0 = last, busy = false;
+  const tick = async () => {
+    requestAnimationFrame(tick);
+    if (busy || app.paused) return;
+    busy = true;
+    try {
+      const now = performance.now();
+      if (app.playing) {
+        acc += (now - last) / 1000 * app.clipInfo.fps;
+        const adv = Math.floor(acc);
+        if (adv > 0) { acc -= adv; app.frame = (app.frame + adv) % app.clipInfo.frames; app.sync(); }
+      }
+      last = now;
+      const s = await app.step();
+      frames += 1;
+      if (now - fpsT0 > 500) { app.stats.fps = frames * 1000 / (now - fpsT0); frames = 0; fpsT0 = now; }
+      $('stats').textContent = `${app.clipInfo.name} ${app.frame}  ${app.m.rpos[app.brdf].name}  ${app.m.lights[app.light].name}` +
+        `${app.unshadowed ? '  UNSHADOWED' : ''}\nstep ${s.step_ms.toFixed(1)} ms (pose ${s.pose_ms.toFixed(1)}, ` +
+        `visibility ${s.visibility_ms.toFixed(1)}, draw submit ${s.render_ms.toFixed(1)})  ${app.stats.fps.toFixed(1)} fps`;
+    } catch (e) {
+      app.paused = true;
+      showError(e.message || String(e));
+    } finally {
+      busy = false;
+    }
+  };
+  requestAnimationFrame(tick);
+}
+
+async function start() {
+  const m = await loadManifest();
+  const arrays = await loadArrays(m);
+  const glsl = await (await fetchOk('../prt_shading.glsl', 'the shading source')).text();
+  ort.env.wasm.wasmPaths = new URL('./vendor/ort/', location.href).href;
+  ort.env.wasm.numThreads = self.crossOriginIsolated ? Math.min(4, navigator.hardwareConcurrency || 1) : 1;
+  window.prt.wasmThreads = ort.env.wasm.numThreads; // threads need cross-origin isolation (prt web --serve sends it)
+  let session;
+  try {
+    const model = await (await fetchOk(m.model.file, 'the visibility model')).arrayBuffer();
+    session = await ort.InferenceSession.create(new Uint8Array(model), { executionProviders: ['wasm'] });
+  } catch (e) {
+    throw e instanceof AssetError ? e : new AssetError(`the visibility model (${ASSETS}${m.model.file}) could not be loaded by onnxruntime-web: ${e.message || e}`);
+  }
+  const texture = m.material && m.material.texture ? await loadTexture(m.material.texture) : null;
+  const app = new App(m, arrays, session, glsl, texture);
+  window.prt.app = app;
+  bindUi(app);
+  const params = new URLSearchParams(location.search);
+  if (params.has('paused')) { app.playing = false; app.paused = true; }
+  await app.step(); // compiles the shader: errors surface here
+  loop(app);
+  return app;
+}
+
+// scripting interface: prt.ready resolves once the first frame is drawn
+window.prt = {
+  error: null,
+  app: null,
+  ready: null,
+  async setState(s) {
+    const app = this.app;
+    if ('clip' in s) app.clip = typeof s.clip === 'number' ? s.clip : app.m.clips.findIndex((c) => c.name === s.clip);
+    if (app.clip < 0) throw new Error(`unknown clip ${s.clip}`);
+    if ('frame' in s) app.frame = s.frame;
+    if ('playing' in s) app.playing = s.playing;
+    if ('paused' in s) app.paused = s.paused;
+    if ('lightAngle' in s) app.lightAngle = s.lightAngle;
+    if ('light' in s) app.light = typeof s.light === 'number' ? s.light : app.m.lights.findIndex((l) => l.name === s.light);
+    if ('brdf' in s) app.brdf = typeof s.brdf === 'number' ? s.brdf : app.m.rpos.findIndex((r) => r.name === s.brdf);
+    if (app.light < 0 || app.brdf < 0) throw new Error('unknown lighting or BRDF');
+    if ('unshadowed' in s) app.unshadowed = s.unshadowed;
+    if ('perPixel' in s) app.perPixel = s.perPixel;
+    if ('tonemap' in s) app.exposure = s.tonemap;
+    if ('syncGpu' in s) app.syncGpu = s.syncGpu;
+    app.applyBrdf(); app.applyLight(); app.applyCamera();
+    if (app.sync) app.sync();
+  },
+  async render() { return this.app.step(); },
+  stats() { return { ...this.app.stats }; },
+  readPixels() { return this.app.readPixels(); },
+  async visibility(features, batch) { return Array.from(await this.app.runVisibility(Float32Array.from(features), batch)); },
+  pose(clip, frame) {
+    const app = this.app;
+    const c = app.m.clips.findIndex((x) => x.name === clip);
+    const local = Poser.localFromClip(app.a[app.m.clips[c].array], frame, app.m.n_joints);
+    const p = app.poser.pose(local);
+    return { positions: Array.from(p.positions), normals: Array.from(p.normals), frames: Array.from(p.frames),
+      features: Array.from(app.poser.features(local)) };
+  },
+};
+window.addEventListener('error', (e) => { if (!window.prt.error) showError(e.message); });
+window.addEventListener('unhandledrejection', (e) => { if (!window.prt.error) showError(e.reason && e.reason.message || String(e.reason)); });
+window.prt.ready = start().catch((e) => { showError(e.message || String(e)); return null; });

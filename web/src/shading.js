@@ -1,0 +1,197 @@
+// The three.js material that runs prt_shading.glsl per vertex (RawShaderMaterial, GLSL ES 3.00).
+//
+// Per-frame state: one RGBA32F texture, STATE_TEXELS(C) texels per vertex - position, t, b, n (xyz each), then
+// the NC visibility coefficients packed 4 per texel. Vertex v's texel p sits at (x, y) = ((v % R) P + p, v / R).
+import * as THREE from 'three';
+
+export const TEXTURE_WIDTH = 4096;
+
+export function stateLayout(nVertices, nCoeffs) {
+  const P = 4 + Math.ceil(nCoeffs / 4);
+  const R = Math.floor(TEXTURE_WIDTH / P);
+  const rows = Math.ceil(nVertices / R);
+  return { P, R, width: R * P, height: rows };
+}
+
+const PRECISION = 'precision highp float;\nprecision highp int;\nprecision highp sampler2D;\n';
+
+const VERTEX = `
+uniform mat4 modelViewMatrix;
+uniform mat4 projectionMatrix;
+uniform highp sampler2D u_state;
+uniform highp sampler2D u_rpoM;
+uniform float u_rpoW[NTERMS * NC];
+uniform float u_rpoU[NTERMS * NC];
+uniform vec3 u_tint;
+uniform vec3 u_lobeDir[NLOBES];
+uniform vec3 u_lobeG[NLOBES * ORDER];
+uniform vec3 u_eye;
+uniform bool u_unshadowed;
+uniform float u_unshadowedVis[NC];
+uniform float u_exposure;
+uniform float u_white;
+uniform float u_gamma;
+uniform bool u_perPixel;
+uniform vec3 u_baseFactor;
+in vec3 position;
+in float a_vid;
+in vec2 a_uv;
+in vec3 a_base;
+out vec3 v_color;
+out vec3 v_radiance;
+out vec2 v_uv;
+
+vec4 stateTexel(int v, int p) {
+  return texelFetch(u_state, ivec2((v % STATE_R) * STATE_P + p, v / STATE_R), 0);
+}
+
+void main() {
+  int vid = int(a_vid + 0.5);
+  vec3 pos = stateTexel(vid, 0).xyz;
+  vec3 t = stateTexel(vid, 1).xyz;
+  vec3 b = stateTexel(vid, 2).xyz;
+  vec3 n = stateTexel(vid, 3).xyz;
+  float vis[NC];
+  for (int q = 0; q < (NC + 3) / 4; q++) {
+    vec4 c = stateTexel(vid, 4 + q);
+    int j = 4 * q;
+    vis[j] = c.x;
+    if (j + 1 < NC) vis[j + 1] = c.y;
+    if (j + 2 < NC) vis[j + 2] = c.z;
+    if (j + 3 < NC) vis[j + 3] = c.w;
+  }
+  if (u_unshadowed) {
+    for (int i = 0; i < NC; i++) vis[i] = u_unshadowedVis[i];
+  }
+  vec3 l[NC];
+  prtLobesInFrame(t, b, n, u_lobeDir, u_lobeG, l);
+  vec3 view = u_eye - pos;
+  view /= max(length(view), 1e-12);
+  vec3 wo = vec3(dot(t, view), dot(b, view), dot(n, view));
+  vec3 base = u_perPixel ? u_baseFactor : a_base;
+#ifdef PRT_MATRIX_FORM
+  vec3 L = prtRadianceMatrix(vis, l, wo, u_rpoM, u_rpoW, u_tint) * base;
+#else
+  vec3 L = prtRadianceFused(vis, l, wo, u_rpoU, u_rpoW, u_tint) * base;
+#endif
+  v_radiance = L;
+  v_uv = a_uv;
+  // 8-bit colours per vertex, interpolated over the triangle: what the Python player's renderer shows
+  v_color = floor(prtToneMap(L, u_exposure, u_white, u_gamma) * 255.0 + 0.5) / 255.0;
+  gl_Position = projectionMatrix * modelViewMatrix * vec4(pos, 1.0);
+}
+`;
+
+const FRAGMENT = `
+uniform bool u_perPixel;
+uniform sampler2D u_baseTex;
+uniform float u_exposure;
+uniform float u_white;
+uniform float u_gamma;
+in vec3 v_color;
+in vec3 v_radiance;
+in vec2 v_uv;
+out vec4 fragColor;
+
+void main() {
+  if (u_perPixel) {
+    vec3 base = texture(u_baseTex, v_uv).rgb;  // linear: the texture is sRGB-decoded by the sampler
+    fragColor = vec4(prtToneMap(v_radiance * base, u_exposure, u_white, u_gamma), 1.0);
+  } else {
+    fragColor = vec4(v_color, 1.0);
+  }
+}
+`;
+
+// the Gaunt table {i, j, k, g} unrolled: "q[k] += g * a[i] * b[j];" per non-zero (prtShProduct's body)
+export function gauntProduct(gaunt) {
+  const out = [];
+  for (let n = 0; n < gaunt.g.length; n++) {
+    out.push(`q[${gaunt.k[n]}] += ${gaunt.g[n].toPrecision(9)} * a[${gaunt.i[n]}] * b[${gaunt.j[n]}];`);
+  }
+  return out.join(' ');
+}
+
+// prtShBasis's recurrence (prt_torch.sh.basis.sh_basis) unrolled: one statement per value, constant indices
+export function shBasisUnrolled(order) {
+  const st = ['float c0 = 1.0; float s0 = 0.0;'];
+  for (let m = 1; m < order; m++) {
+    st.push(`float c${m} = c${m - 1} * d.x - s${m - 1} * d.y; float s${m} = s${m - 1} * d.x + c${m - 1} * d.y;`);
+  }
+  for (let m = 0; m < order; m++) {
+    let qmm = 1;
+    for (let i = 1; i < 2 * m; i += 2) qmm *= i;
+    for (let l = m; l < order; l++) {
+      let q;
+      if (l === m) q = `${qmm.toFixed(1)}`;
+      else if (l === m + 1) q = `d.z * ${((2 * m + 1) * qmm).toFixed(1)}`;
+      else q = `(${(2 * l - 1).toFixed(1)} * d.z * q${l - 1}_${m} - ${(l + m - 1).toFixed(1)} * q${l - 2}_${m}) / ${(l - m).toFixed(1)}`;
+      st.push(`float q${l}_${m} = ${q};`);
+      let ratio = 1;
+      for (let i = l - m + 1; i <= l + m; i++) ratio /= i;
+      let k = Math.sqrt((2 * l + 1) / (4 * Math.PI) * ratio);
+      if (m > 0) k *= Math.SQRT2;
+      const ks = k.toPrecision(12);
+      if (m === 0) st.push(`y[${l * (l + 1)}] = ${ks} * q${l}_0;`);
+      else st.push(`y[${l * (l + 1) + m}] = ${ks} * q${l}_${m} * c${m}; y[${l * (l + 1) - m}] = ${ks} * q${l}_${m} * s${m};`);
+    }
+  }
+  return st.join(' ');
+}
+
+export function lobeAccumUnrolled(order) {
+  const st = [];
+  for (let l = 0; l < order; l++) {
+    for (let i = l * l; i < (l + 1) * (l + 1); i++) st.push(`l[${i}] += lobeG[k * ORDER + ${l}] * y[${i}];`);
+  }
+  return st.join(' ');
+}
+
+export function makeMaterial(glsl, sizes, layout, gaunt, matrixForm = false) {
+  const defines = PRECISION + `#define ORDER ${sizes.order}\n#define NC ${sizes.order * sizes.order}\n` +
+    `#define NTERMS ${sizes.nTerms}\n#define NLOBES ${sizes.nLobes}\n` +
+    `#define STATE_P ${layout.P}\n#define STATE_R ${layout.R}\n` +
+    `#define PRT_GAUNT_PRODUCT ${gauntProduct(gaunt)}\n` +
+    `#define PRT_SH_BASIS_UNROLLED ${shBasisUnrolled(sizes.order)}\n` +
+    `#define PRT_LOBE_ACCUM_UNROLLED ${lobeAccumUnrolled(sizes.order)}\n` + (matrixForm ? '#define PRT_MATRIX_FORM\n' : '');
+  const nc = sizes.order * sizes.order;
+  const uniforms = {
+    u_state: { value: null },
+    u_rpoM: { value: null },
+    u_rpoW: { value: new Float32Array(sizes.nTerms * nc) },
+    u_rpoU: { value: new Float32Array(sizes.nTerms * nc) },
+    u_tint: { value: new THREE.Vector3(1, 1, 1) },
+    u_lobeDir: { value: Array.from({ length: sizes.nLobes }, () => new THREE.Vector3(0, 0, 1)) },
+    u_lobeG: { value: Array.from({ length: sizes.nLobes * sizes.order }, () => new THREE.Vector3()) },
+    u_eye: { value: new THREE.Vector3() },
+    u_unshadowed: { value: false },
+    u_unshadowedVis: { value: new Float32Array(nc) },
+    u_exposure: { value: 1 },
+    u_white: { value: 1 },
+    u_gamma: { value: 2.2 },
+    u_perPixel: { value: false },
+    u_baseFactor: { value: new THREE.Vector3(1, 1, 1) },
+    u_baseTex: { value: null },
+  };
+  return new THREE.RawShaderMaterial({
+    glslVersion: THREE.GLSL3,
+    uniforms,
+    vertexShader: defines + glsl + VERTEX,
+    fragmentShader: defines + glsl + FRAGMENT,
+    side: THREE.DoubleSide,
+  });
+}
+
+// RPO M (k, C, C) float32 -> RGBA32F texture, row b*C + i = M_b[i][:], 4 per texel, zero padded
+export function rpoTexture(M, nTerms, nc) {
+  const texels = Math.ceil(nc / 4);
+  const data = new Float32Array(texels * 4 * nTerms * nc);
+  for (let r = 0; r < nTerms * nc; r++) {
+    for (let j = 0; j < nc; j++) data[r * texels * 4 + j] = M[r * nc + j];
+  }
+  const tex = new THREE.DataTexture(data, texels, nTerms * nc, THREE.RGBAFormat, THREE.FloatType);
+  tex.minFilter = tex.magFilter = THREE.NearestFilter;
+  tex.generateMipmaps = false;
+  tex.needsUpdate = true;
+  return tex;
+}
