@@ -31,6 +31,8 @@ COMMANDS: dict[str, str] = {
     "compare": "prt_torch.commands.compare",
     "info": "prt_torch.commands.info",
     "bench": "prt_torch.commands.bench",
+    "heightfield": "prt_torch.commands.heightfield",
+    "web": "prt_torch.commands.web",
 }
 
 

@@ -68,7 +68,10 @@ _REPORT = "report"
 _RESULTS_JSON = "results.json"
 _EXPORT_JSON = "export.json"
 _FRAMES = "frames.npz"
+_BLOCKERS = "blockers.npz"
+_SHEXP_ONNX = "shexp.onnx"
 _RPO = "rpo"
+_MATERIAL_RPO = "material"  # rpo/material-<key>.npz: the character material's RPO (player cache)
 _COMPARE = "compare"
 _COMPARE_JSON = "compare.json"
 _COMPARE_TABLE = "table.md"
@@ -82,6 +85,8 @@ _DEMO_VIDEO = "heldout.mp4"
 _DEMO_IMAGE = "comparison.png"
 _DEMO_METRICS = "demo_metrics.json"
 _PLAY_TIMINGS = "play_timings.json"
+_SCENE_JSON = "scene.json"
+_COMPARE_GROUND = "ground.png"
 _LOCK = ".prt.lock"
 _LOCK_INFO = ".prt.lock.json"
 
@@ -299,6 +304,16 @@ class RunDir:
     def rpo_dir(self) -> Path:
         return self.path / _RPO
 
+    @property
+    def blockers_path(self) -> Path:
+        """``blockers.npz``: the character's sphere blockers (:class:`prt_torch.blockers.SphereSet`), ``prt export``."""
+        return self.path / _BLOCKERS
+
+    @property
+    def shexp_path(self) -> Path:
+        """``shexp.onnx``: the SHEXP sphere-blocker visibility graph (:mod:`prt_torch.export.shexp_graph`)."""
+        return self.path / _SHEXP_ONNX
+
     def graph_path(self, graph: str) -> Path:
         """``<graph>.onnx`` for ``graph`` in :data:`GRAPHS`."""
         check(graph in GRAPHS, f"unknown graph {graph!r}: expected one of {list(GRAPHS)}")
@@ -308,6 +323,12 @@ class RunDir:
         """``rpo/<name>.npz``."""
         check(bool(name) and "/" not in name and not name.startswith("."), f"bad BRDF name {name!r}")
         return self.rpo_dir / f"{name}.npz"
+
+    def material_rpo_path(self, key: str) -> Path:
+        """``rpo/material-<key>.npz``: the character material's RPO, content-addressed (``key``: hex digest of its
+        BRDF and settings, :func:`prt_torch.rig.material.material_rpo_key`), built by the player on first use."""
+        check(re.fullmatch(r"[0-9a-f]{8,64}", key) is not None, f"bad material RPO key {key!r}")
+        return self.rpo_dir / f"{_MATERIAL_RPO}-{key}.npz"
 
     def relative(self, path: Path) -> str:
         """``path`` relative to the run directory, POSIX style (for metadata files)."""
@@ -338,6 +359,17 @@ class RunDir:
     def play_timings(self) -> Path:
         """Frame timings of ``prt play`` without an output video."""
         return self.path / _PLAY_TIMINGS
+
+    @property
+    def scene_json(self) -> Path:
+        """The run's scene (``prt_torch.scene.config.SceneConfig`` as JSON; written by ``prt demo`` from the
+        config's ``scene:`` section): read by ``prt play --ground`` and ``prt compare``."""
+        return self.path / _SCENE_JSON
+
+    @property
+    def compare_ground(self) -> Path:
+        """``compare/ground.png``: the ground's cast shadow, SHEXP vs whole-scene Embree truth."""
+        return self.compare_dir / _COMPARE_GROUND
 
     def timings_path(self, video: str | os.PathLike[str]) -> Path:
         """``<video stem>.timings.json`` next to a video (or in the run directory for a bare name)."""

@@ -47,6 +47,7 @@ ENTRY_POINTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "bake": (("bake",), ("prt_torch.commands.bake",)),
     "train": (("train",), ("prt_torch.commands.train", "prt_torch.commands.eval", "train.__main__")),
     "export": (("export",), ("prt_torch.commands.export", "export.__main__")),
+    "sg": (("sg",), ("prt_torch.sg.lighting", "prt_torch.sg.brdf_fit", "prt_torch.sg.algebra")),
 }
 
 _TORCH_TENSORS = "only for torch-tensor input (numpy input never imports torch)"
@@ -55,6 +56,9 @@ _RPO_BUILD = "factor_brdf/build_rpo build RPOs (prt export); the player only loa
 _LOAD_MODEL = "RunDir.load_model (torch models) is for train/eval/export"
 
 _DATASET = "RunDir.dataset (the zarr store) is for train/eval/export"
+_MATERIAL_RPO = ("the character material's Cook-Torrance RPO is built once per run (`prt play --brdf material`, "
+                 "`prt web`) and cached; without scikit-learn (player-only install) that is a one-line error")
+_SG_LIGHT = "`prt light --sg` needs the sg extra (healpy, torch) and says so in one line without it"
 
 #: entry point -> {"module: top" (a lazy import) or "module -> imported module" (a lazy edge): reason}
 UNUSED_LAZY: dict[str, dict[str, str]] = {
@@ -62,14 +66,29 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
         "prt_torch.sh.basis: torch": _TORCH_TENSORS,
         "prt_torch.sh.product: torch": _TORCH_TENSORS,
         "prt_torch.sh.rotation: torch": _TORCH_TENSORS,
+        "prt_torch.sh.zonal: torch": _TORCH_TENSORS,
+        "prt_torch.blockers.spheres: sklearn": "sphere blockers are fitted (k-means) by prt export; the scene player "
+                                               "only loads and poses them",
         "prt_torch.rig.vertex_frames: sklearn": _MEAN_SHIFT,
         "prt_torch.brdf.factor: sklearn": _RPO_BUILD,
+        "prt_torch.rig.material: sklearn": _MATERIAL_RPO,
         "prt_torch.rig.random_pose: sklearn": "the cpca training-pose sampler (k-means) runs in the bake's plan only",
         "prt_torch.rundir -> prt_torch.models.visibility": _LOAD_MODEL,
         "prt_torch.rundir -> prt_torch.bake.store": _DATASET,
+        "prt_torch.commands.light -> prt_torch.sg.lighting": _SG_LIGHT,
+        "prt_torch.commands.light: healpy": _SG_LIGHT,
+        "prt_torch.commands.light: torch": _SG_LIGHT,
+        "prt_torch.commands.play -> prt_torch.player.sg_renderer": "`prt play --renderer sg` (SG lighting + voxel "
+                                                                   "cone tracing) needs torch and healpy",
+    },
+    "sg": {
+        "prt_torch.brdf.factor: sklearn": "SG BRDF fits use hemisphere_rule only, not the RPO factorisation (SVD)",
     },
     "bake": {
         "prt_torch.sh.basis: torch": _TORCH_TENSORS,
+        "prt_torch.rig.material -> prt_torch.brdf": _MATERIAL_RPO,
+        "prt_torch.rig.material -> prt_torch.brdf.rpo": _MATERIAL_RPO,
+        "prt_torch.rig.material -> prt_torch.brdf.factor": _MATERIAL_RPO,
         "prt_torch.rundir -> prt_torch.models.visibility": _LOAD_MODEL,
     },
 }
@@ -294,7 +313,8 @@ def test_base_has_no_torch_and_the_pins_hold() -> None:
 def test_all_is_every_extra() -> None:
     table = pyproject()["project"]["optional-dependencies"]
     assert set(table) >= {"bake", "train", "export", "all", "dev"}
-    pipeline = [e for e in table if e not in ("all", "dev")]
+    # gpu (onnxruntime-gpu) replaces the CPU onnxruntime wheel instead of adding to it: never part of `all`
+    pipeline = [e for e in table if e not in ("all", "dev", "gpu")]
     assert declared("all") == declared(*pipeline)
 
 

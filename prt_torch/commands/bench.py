@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "Benchmarks (bake, fit, play, shade): our path vs the raw limit or the naive way, in one run."
+HELP = "Benchmarks (bake, fit, play, shade, heightfield): our path vs the raw limit or the naive way, in one run."
 
-BENCHES = ("bake", "fit", "play", "shade")
+BENCHES = ("bake", "fit", "play", "shade", "heightfield", "scene", "sglight", "sg", "shexp")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

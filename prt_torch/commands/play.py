@@ -16,7 +16,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--motion-fps", type=float, default=None,
                         help="retarget the motion at this rate (default: the character's clips' rate)")
     parser.add_argument("--env", default=None, help="HDR environment map (.hdr/.exr/.pfm); default: procedural sky")
-    parser.add_argument("--brdf", default=None, help="BRDF name from the run's RPO catalogue, or an RPO .npz")
+    parser.add_argument("--brdf", default=None, help="BRDF name from the run's RPO catalogue, 'material' (the "
+                                                     "character's own material: Cook-Torrance with its roughness, "
+                                                     "built once and cached in the run), or an RPO .npz; default: "
+                                                     "'material' for a glTF character with a material, else the "
+                                                     "catalogue's first")
     parser.add_argument("--out", default=None, help="write an MP4 here (offscreen)")
     parser.add_argument("--png", default=None, help="write PNG frames into this directory (offscreen)")
     parser.add_argument("--max-frames", "--frames", dest="max_frames", type=int, default=None,
@@ -26,10 +30,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="one fused ORT graph, visibility then shading, or visibility on a worker thread "
                              "overlapping the numpy posing (best when a core is free)")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"],
+                        help="onnxruntime device: cuda needs onnxruntime-gpu (extra 'gpu') and a CUDA GPU")
     parser.add_argument("--size", default="480x640", help="image size HxW (default 480x640; each side 1..8192)")
     parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
                                                         "a timings file in RUN)")
     parser.add_argument("--light-angle", type=float, default=0.0, help="rotate the lighting about z (degrees)")
+    parser.add_argument("--renderer", default="onnx", choices=["onnx", "sg"],
+                        help="onnx: the run's learned models; sg: SG lighting + voxel cone-traced visibility of each "
+                             "posed frame (seed 004; needs torch and healpy)")
+    parser.add_argument("--vct-resolution", type=int, default=128, help="--renderer sg: voxel grid side (64-256)")
+    parser.add_argument("--ground", action="store_true", help="a floor under the character(s), with cast shadows "
+                                                              "(prt_torch.player.scene)")
+    parser.add_argument("--scene", default=None, help="a scene YAML (scene: ground, characters), e.g. "
+                                                      "configs/scene2.yaml; default: the run's recorded scene")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
     if args.timings is not None:
         V.output_file(args.timings, "--timings")
 
+    if args.ground or args.scene is not None:
+        return _play_scene(args, h, w)
+
     import numpy as np
     from rich.console import Console
 
@@ -82,8 +99,15 @@ def run(args: argparse.Namespace) -> int:
 
     run = RunDir(args.run)
     timings = args.timings or (run.timings_path(args.out) if args.out else run.play_timings)
-    player = Player(args.run, env=args.env, brdf=args.brdf, graph=args.graph, threads=args.threads,
-                    window_size=(h, w))
+    if args.renderer == "sg":
+        from prt_torch.player.sg_renderer import SGPlayer
+
+        limits.check_int(args.vct_resolution, "--vct-resolution", 16, 512)
+        player = SGPlayer(args.run, env=args.env, brdf=args.brdf, threads=args.threads, window_size=(h, w),
+                          resolution=args.vct_resolution, device=args.device)
+    else:
+        player = Player(args.run, env=args.env, brdf=args.brdf, graph=args.graph, threads=args.threads,
+                        window_size=(h, w), device=args.device)
     if args.light_angle:
         player.rotate_light(np.radians(args.light_angle))
     clip = args.clip
@@ -103,5 +127,45 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"{res.frames} frames: compute path {s.get('compute_fps', 0):.0f} frames/s "
                   f"({s.get('compute_ms_median', 0):.2f} ms), with rendering {s.get('total_fps', 0):.1f} frames/s")
     for p in res.outputs:
+        console.print(f"wrote {p}")
+    return 0
+
+
+def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
+    """``--ground`` / ``--scene``: :class:`prt_torch.player.scene.ScenePlayer` (offscreen only)."""
+    from rich.console import Console
+
+    from prt_torch.errors import PrtError
+    from prt_torch.player.scene import ScenePlayer
+    from prt_torch.rundir import RunDir
+    from prt_torch.scene.config import load_scene
+
+    if args.motion is not None:
+        raise PrtError("--motion is not supported with --ground/--scene: use --clip")
+    if args.out is None and args.png is None:
+        raise PrtError("--ground/--scene render offscreen: pass --out video.mp4 or --png DIR")
+    if args.scene is not None:
+        from prt_torch.commands import _validate as V
+
+        V.input_file(args.scene, "--scene")
+    scene = load_scene(args.scene) if args.scene is not None else None
+    run = RunDir(args.run)
+    timings = args.timings or (run.timings_path(args.out) if args.out else run.play_timings)
+    console = Console(stderr=True)
+    player = ScenePlayer(args.run, scene=scene, ground=args.ground, clip=args.clip, fps=args.fps, env=args.env,
+                         brdf=args.brdf, threads=args.threads, window_size=(h, w))
+    try:
+        if args.light_angle:
+            import numpy as np
+
+            for p in player.players.values():
+                p.rotate_light(np.radians(args.light_angle))
+        res = player.play(out=args.out, png_dir=args.png, max_frames=args.max_frames, timings=timings)
+    finally:
+        player.close()
+    console.print(f"{res['frames']} scene frames ({len(player.actors)} character(s), "
+                  f"{'a' if player.ground is not None else 'no'} floor): compute path "
+                  f"{res.get('compute_fps', 0):.0f} frames/s, with rendering {res.get('total_fps', 0):.1f} frames/s")
+    for p in res["outputs"]:
         console.print(f"wrote {p}")
     return 0

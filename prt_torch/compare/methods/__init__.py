@@ -146,6 +146,8 @@ class MethodBase:
     name: ClassVar[str] = ""
     output: ClassVar[str] = "visibility"
     runtime: str = ""
+    #: run when no ``--methods`` are given (``False``: opt-in, e.g. heavy methods such as ``sg_vct``)
+    default: ClassVar[bool] = True
 
     @classmethod
     def available(cls, run: CompareRun) -> bool:
@@ -191,7 +193,8 @@ def unregister(name: str) -> None:
 
 def resolve(names: list[str] | None, run: CompareRun) -> list[str]:
     """The methods to run: ``names`` (each must be registered; a registered method the run cannot provide is an
-    error) or every available one; ``sh_truth`` is always first (every score is against it)."""
+    error) or every available default one (opt-in methods have ``default = False``); ``sh_truth`` is always first
+    (every score is against it)."""
     if names:
         for n in names:
             if n not in METHODS:
@@ -201,7 +204,7 @@ def resolve(names: list[str] | None, run: CompareRun) -> list[str]:
                 raise PrtError(f"method {n!r} is not available for {run.run.path}")
         chosen = list(dict.fromkeys(names))
     else:
-        chosen = [n for n, cls in METHODS.items() if cls.available(run)]
+        chosen = [n for n, cls in METHODS.items() if getattr(cls, "default", True) and cls.available(run)]
     return ["sh_truth"] + [n for n in chosen if n != "sh_truth"]
 
 
@@ -213,3 +216,5 @@ def graph_dir(run: CompareRun) -> Path:
 from prt_torch.compare.methods import sh_truth as _sh_truth  # noqa: E402,F401,I001
 from prt_torch.compare.methods import unshadowed as _unshadowed  # noqa: E402,F401
 from prt_torch.compare.methods import learned as _learned  # noqa: E402,F401
+from prt_torch.compare.methods import sg_vct as _sg_vct  # noqa: E402,F401
+from prt_torch.compare.methods import shexp as _shexp  # noqa: E402,F401
