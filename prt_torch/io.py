@@ -173,3 +173,21 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
 def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> None:
     """Write ``obj`` as indented JSON to ``path`` atomically."""
     atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+
+
+def read_npz_with_meta(path: str | os.PathLike[str], what: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The arrays of an ``.npz`` written with a JSON ``meta`` entry, and that metadata; a missing or unreadable
+    file is a one-line :class:`~prt_torch.errors.PrtError` naming ``what`` (e.g. ``"character"``) and the path."""
+    import numpy as np
+
+    from prt_torch.errors import PrtError, check
+
+    path = Path(path)
+    check(path.is_file(), f"{what} file not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+        meta = json.loads(str(data["meta"]))
+    except (OSError, ValueError, KeyError) as e:
+        raise PrtError(f"not a {what} .npz file: {path} ({type(e).__name__})") from None
+    return data, meta

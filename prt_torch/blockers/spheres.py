@@ -28,13 +28,12 @@ import io
 import json
 import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
-from prt_torch.io import atomic_write_bytes
+from prt_torch.errors import check
+from prt_torch.io import atomic_write_bytes, read_npz_with_meta
 
 FORMAT = "prt_torch.spheres/1"
 DEFAULT_SPHERES = 48
@@ -86,14 +85,7 @@ class SphereSet:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> SphereSet:
         """Read a file written by :meth:`save`."""
-        path = Path(path)
-        check(path.is_file(), f"sphere set file not found: {path}")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-            meta = json.loads(str(data["meta"]))
-        except (OSError, ValueError, KeyError) as e:
-            raise PrtError(f"not a sphere set .npz file: {path} ({type(e).__name__})") from None
+        data, meta = read_npz_with_meta(path, "sphere set")
         check(meta.get("format") == FORMAT, f"unsupported sphere set format {meta.get('format')!r}: {path}")
         return cls(data["bone"], data["center"], data["radius"], float(meta.get("radius_quantile",
                                                                               DEFAULT_RADIUS_QUANTILE)))

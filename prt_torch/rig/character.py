@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from prt_torch.errors import PrtError, check
-from prt_torch.io import atomic_path
+from prt_torch.io import atomic_path, read_npz_with_meta
 from prt_torch.rig.clip import Clip
 from prt_torch.rig.features import pose_features
 from prt_torch.rig.material import Material
@@ -265,14 +265,7 @@ class Character:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Character:
         """Read a character written by :meth:`save`."""
-        path = Path(path)
-        check(path.is_file(), f"character file not found: {path}")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-            meta = json.loads(str(data["meta"]))
-        except (OSError, ValueError, KeyError) as e:
-            raise PrtError(f"not a character .npz file: {path} ({type(e).__name__})") from None
+        data, meta = read_npz_with_meta(path, "character")
         check(meta.get("format") == FORMAT_VERSION, f"unsupported character file format {meta.get('format')}: {path}")
         clips = {n: Clip(n, fps, data[f"clip_{i}"]) for i, (n, fps) in enumerate(zip(meta["clips"], meta["fps"],
                                                                                        strict=True))}
