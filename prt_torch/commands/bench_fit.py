@@ -4,6 +4,9 @@ Seed 003 Table 1 reports 14 h 32 min (MLP) vs 12 min (linear), a 73x ratio. Here
 fitted on the same reduced training data in one process (CV included, as ``prt train`` does), and
 the ratio MLP / linear is printed. The data: ``--dataset`` (a baked dataset or a run directory holding
 one, e.g. ``runs/builtin``) or, by default, a fresh small bake of the built-in character.
+
+``--device cpu,cuda`` fits every kind on each device in turn (same reduced data, same process) and prints
+each device's times and its speedup over the first; the top-level keys are the first device's.
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="baked dataset or run directory (default: bake the built-in character small)")
     parser.add_argument("--config", default=None, help="run config whose train section to use (default: defaults)")
     parser.add_argument("--max-iter", type=int, default=None, help="override train.max_iter")
+    parser.add_argument("--device", default=None,
+                        help="comma-separated fit devices among auto,cpu,cuda, timed side by side "
+                             "(default: the config's train.device)")
     parser.add_argument("--json", action="store_true", help="print a JSON object")
 
 
@@ -63,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.commands import _validate as V
     from prt_torch.config import load_config
     from prt_torch.fit.config import TrainConfig
+    from prt_torch.fit.device import DEVICES, fit_device, resolve_device
     from prt_torch.fit.inputs import load_skinning
     from prt_torch.fit.train import fit_mlp_kind, fit_ridge_kind, reduce_training
 
@@ -74,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config).train if args.config else TrainConfig()
     if args.max_iter:
         cfg = cfg.model_copy(update={"max_iter": args.max_iter})
+    asked = V.names(args.device, "--device", DEVICES, what="device") if args.device is not None else [cfg.device]
+    devices = list(dict.fromkeys(resolve_device(d) for d in asked))  # cuda without a GPU: one line, before work
     with tempfile.TemporaryDirectory() as tmp:
         if args.dataset:
             dataset = Path(args.dataset)
@@ -90,15 +99,26 @@ def run(args: argparse.Namespace) -> int:
                 skinning = load_skinning(info) if cfg.input_selection == "joints" else None
                 red, m = _measured(lambda: reduce_training(train, info.cluster, cfg, skinning))
                 reduce_s = m["wall_s"]
-                usage = {"reduce": m}
-                for kind in ("linear", "quadratic"):
-                    _, usage[kind] = _measured(lambda kind=kind: fit_ridge_kind(kind, red, cfg.alphas))
-                mlp, usage["mlp"] = _measured(lambda: fit_mlp_kind(red, cfg))
+                per_device: dict[str, tuple[dict[str, dict[str, float]], Any]] = {}
+                for name in devices:
+                    dev = fit_device(name)
+                    usage = {"reduce": m}
+                    for kind in ("linear", "quadratic"):
+                        _, usage[kind] = _measured(lambda kind=kind, dev=dev: fit_ridge_kind(kind, red, cfg.alphas,
+                                                                                             device=dev))
+                    mlp, usage["mlp"] = _measured(lambda dev=dev: fit_mlp_kind(red, cfg, device=dev))
+                    per_device[name] = (usage, mlp)
+                usage, mlp = per_device[devices[0]]
                 times = {k: u["wall_s"] for k, u in usage.items()}
                 total = {f: sum(u[f] for u in usage.values()) for f in ("user_s", "sys_s", "page_faults")}
         finally:
             torch.set_num_threads(threads)
-    out = {"linear_s": times["linear"], "quadratic_s": times["quadratic"], "mlp_s": times["mlp"],
+    by_device = {name: {**{f"{k}_s": u[k]["wall_s"] for k in KINDS}, "mlp_objective": r.choice.get("objective"),
+                        "mlp_iterations": r.choice.get("iterations"),
+                        f"speedup_vs_{devices[0]}": {k: times[k] / max(u[k]["wall_s"], 1e-9) for k in KINDS}}
+                 for name, (u, r) in per_device.items()}
+    out = {"device": devices[0], "devices": by_device,
+           "linear_s": times["linear"], "quadratic_s": times["quadratic"], "mlp_s": times["mlp"],
            "mlp_over_linear": times["mlp"] / max(times["linear"], 1e-9),
            "quadratic_over_linear": times["quadratic"] / max(times["linear"], 1e-9),
            "reduce_s": reduce_s, "frames": int(red.x.shape[0]), "reduced_inputs": int(red.x.shape[1]),
@@ -119,5 +139,10 @@ def run(args: argparse.Namespace) -> int:
             u = usage[k]
             console.print(f"  {k:10s} {times[k]:9.3f} s   x{times[k] / max(times['linear'], 1e-9):8.1f} linear   "
                           f"(user {u['user_s']:.2f} s, sys {u['sys_s']:.2f} s, {u['page_faults']} page faults)")
-        console.print(f"MLP / linear = {out['mlp_over_linear']:.1f} (seed 003 Table 1: 73x)")
+        console.print(f"MLP / linear = {out['mlp_over_linear']:.1f} (seed 003 Table 1: 73x) on {devices[0]}")
+        for name in devices[1:]:
+            d = by_device[name]
+            ratios = "  ".join(f"{k} {d[f'{k}_s']:.3f} s (x{d[f'speedup_vs_{devices[0]}'][k]:.1f})" for k in KINDS)
+            console.print(f"  on {name}: {ratios} vs {devices[0]}; MLP objective {d['mlp_objective']:.6g} "
+                          f"vs {by_device[devices[0]]['mlp_objective']:.6g}")
     return 0

@@ -14,6 +14,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dataset", default=None, help="baked dataset to read (default: the run's own)")
     parser.add_argument("--run-dir", default=None, help="output run directory (default: runs/<name>)")
     parser.add_argument("--kinds", default=None, help="comma-separated subset of linear,quadratic,mlp")
+    parser.add_argument("--device", default=None,
+                        help="where the fit runs: auto (cuda when torch sees a GPU), cpu or cuda "
+                             "(default: the config's train.device)")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
 
 
@@ -23,12 +26,16 @@ def run(args: argparse.Namespace) -> int:
 
     from prt_torch.commands import _validate as V
     from prt_torch.config import load_config
-    from prt_torch.errors import PrtError
+    from prt_torch.errors import PrtError, check
     from prt_torch.fit.config import KINDS
+    from prt_torch.fit.device import DEVICES, resolve_device
     from prt_torch.fit.train import dataset_of, train_dataset
     from prt_torch.rundir import RunDir
 
     kinds = V.names(args.kinds, "--kinds", KINDS, what="model kind") if args.kinds is not None else None
+    if args.device is not None:
+        check(args.device in DEVICES, f"--device: unknown device {args.device[:32]!r}: expected one of "
+                                      f"{', '.join(DEVICES)}")
     if args.run_dir is not None:
         V.run_dir(args.run_dir, "--run-dir")
     if args.dataset is not None:
@@ -40,6 +47,9 @@ def run(args: argparse.Namespace) -> int:
     if kinds:
         tcfg = tcfg.model_validate({**tcfg.model_dump(), "kinds": kinds,
                                     "default_kind": tcfg.default_kind if tcfg.default_kind in kinds else kinds[-1]})
+    if args.device is not None:
+        tcfg = tcfg.model_validate({**tcfg.model_dump(), "device": args.device})
+    resolve_device(tcfg.device)  # cuda without a GPU: one line, before any work
     run = RunDir(cfg.out_dir)
     dataset = Path(args.dataset) if args.dataset else dataset_of(cfg)
     if not Path(dataset).exists():

@@ -19,9 +19,9 @@ class TrainConfig(BaseModel):
     squared errors over frames), ``mlp_alphas`` the grid of seed 003 eq. 13's ``alpha``,
     ``neurons`` the hidden-layer sizes tried; both are chosen per cluster by ``folds``-fold
     blocked cross-validation (``cv_iter`` L-BFGS iterations per CV fit, ``max_iter`` for the final
-    fit). ``dataset`` defaults to ``<run_dir>/dataset.zarr``. ``default_kind`` must be one of ``kinds``
-    (when not given and ``mlp`` is not fitted, the first of ``kinds``). Every number is finite and
-    bounded (:mod:`prt_torch.limits`).
+    fit). ``device`` says where the fit runs (:mod:`prt_torch.fit.device`). ``dataset`` defaults to
+    ``<run_dir>/dataset.zarr``. ``default_kind`` must be one of ``kinds`` (when not given and ``mlp`` is not
+    fitted, the first of ``kinds``). Every number is finite and bounded (:mod:`prt_torch.limits`).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -48,6 +48,9 @@ class TrainConfig(BaseModel):
     cv_iter: int = Field(default=200, ge=1, le=L.MAX_ITERATIONS)
     history_size: int = Field(default=20, ge=2, le=L.MAX_HISTORY)
     seed: int = Field(default=0, ge=0, le=L.MAX_SEED)
+    # where the ridge solves and the MLP L-BFGS run (prt_torch.fit.device): auto = cuda when torch sees a GPU,
+    # else cpu (the float64 reference path); not part of the train stage key when it resolves to cpu
+    device: Literal["auto", "cpu", "cuda"] = "auto"
     # torch intra-op threads while fitting (0: leave torch's default)
     threads: int = Field(default=1, ge=0, le=L.MAX_THREADS)
     dataset: str | None = Field(default=None, min_length=1, max_length=L.MAX_STRING_LENGTH)

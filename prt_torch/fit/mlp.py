@@ -17,6 +17,11 @@ re-allocating the ``(S, G, F, K)`` residual at every step cost more kernel time 
 arithmetic. Clusters with similar input/output counts share padded blocks and a CV fold's settings skip
 its held-out frames, which removes most of the padding arithmetic; the result is the same objective
 (:func:`reference_objective`, tested against autograd) and the same ``torch.optim.LBFGS`` settings.
+
+Device: the fit runs where its input tensors are (or on ``device``): the data is moved there once per fit,
+the parameters, L-BFGS state and every work buffer live there, and :func:`fit_mlp` returns the parameters
+on the CPU. On the CPU the tanh runs in numpy (SIMD, into the same memory); elsewhere in torch, and the
+per-block objective terms are summed on the device (one host sync per evaluation instead of one per block).
 """
 
 from __future__ import annotations
@@ -40,6 +45,10 @@ class MLPParams:
     d0: torch.Tensor
     C: torch.Tensor
     c0: torch.Tensor
+
+    def to(self, device: torch.device | str) -> MLPParams:
+        """The parameters on ``device`` (the same tensors where they are there already)."""
+        return MLPParams(*(t.to(device) for t in (self.D, self.d0, self.C, self.c0)))
 
 
 def mlp_forward(x: torch.Tensor, p: MLPParams) -> torch.Tensor:
@@ -68,15 +77,19 @@ class _Block:
     def __init__(self, idx: torch.Tensor, sidx: torch.Tensor, frames: torch.Tensor, e: int, k: int, x: torch.Tensor,
                  z: torch.Tensor, om: torch.Tensor, cols: list[torch.Tensor], nm: torch.Tensor, w: torch.Tensor,
                  alpha: torch.Tensor, offset: int) -> None:
+        """``idx``, ``sidx``, ``frames``, ``cols`` index tensors on the CPU; the data on the fit's device."""
+        dev = x.device
         gb, s, n, f = len(idx), len(sidx), nm.shape[2], len(frames)
+        cpu_idx, idx, sidx, frames = idx, idx.to(dev), sidx.to(dev), frames.to(dev)
         x, z = x[frames], z[frames]
         self.idx, self.sidx, self.e, self.k, self.shape, self.offset = idx, sidx, e, k, (gb, s, n, f), offset
-        self.gather = torch.zeros(gb, e, dtype=torch.int64)  # (Gb, e) input index (padding: 0, masked)
-        self.valid = torch.zeros(gb, e, dtype=DT)
-        for i, g in enumerate(idx.tolist()):
-            self.gather[i, :len(cols[g])] = cols[g]
-            self.valid[i, :len(cols[g])] = 1.0
-        self.xt = torch.ones(gb, f, e + 1, dtype=DT)  # (Gb, F, e + 1): gathered inputs, a ones column last
+        gather = torch.zeros(gb, e, dtype=torch.int64)  # (Gb, e) input index (padding: 0, masked)
+        valid = torch.zeros(gb, e, dtype=DT)
+        for i, g in enumerate(cpu_idx.tolist()):
+            gather[i, :len(cols[g])] = cols[g]
+            valid[i, :len(cols[g])] = 1.0
+        self.gather, self.valid = gather.to(dev), valid.to(dev)
+        self.xt = torch.ones(gb, f, e + 1, dtype=DT, device=dev)  # (Gb, F, e + 1): gathered inputs, a ones column last
         self.xt[:, :, :e] = x[:, self.gather].permute(1, 0, 2) * self.valid[:, None, :]
         omb = om[idx, :k]  # (Gb, k)
         zb = z[:, idx, :k].permute(1, 2, 0)  # (Gb, k, F)
@@ -87,24 +100,25 @@ class _Block:
         self.n_d = gb * s * n * (e + 1)
         self.size = self.n_d + gb * s * k * (n + 1)
         nmb = nm[sidx][:, idx].transpose(0, 1)  # (Gb, Sb, N)
-        self.mask = torch.empty(self.size, dtype=DT)
+        self.mask = torch.empty(self.size, dtype=DT, device=dev)
         md, mc = self._split(self.mask)
         md[..., :e] = nmb[..., None] * self.valid[:, None, None, :]
         md[..., e] = nmb
         mc[..., :n] = omb[:, None, :, None] * nmb[:, :, None, :]
         mc[..., n] = omb[:, None, :]
         # work buffers, reused by every evaluation
-        self.pre = torch.empty(gb, s * n, f, dtype=DT)  # hidden pre-activation, then dL/d(pre)
-        self.ht = torch.ones(gb * s, n + 1, f, dtype=DT)  # tanh activations, a ones row last
-        self.r = torch.empty(gb * s, k, f, dtype=DT)  # residual
-        self.ew = torch.empty(gb * s, k, f, dtype=DT)  # 2 w * residual = dL/dZ
-        self.sq_c = torch.empty(gb, s, k, n, dtype=DT)
-        self.sq_d = torch.empty(gb, s, n, e, dtype=DT)
-        self.sum_c = torch.empty(gb, s, dtype=DT)
-        self.sum_d = torch.empty(gb, s, dtype=DT)
-        # numpy views of the same memory: numpy's float64 tanh is SIMD (about 4x torch's here)
-        self.pre_np = self.pre.view(gb * s, n, f).numpy()
-        self.h_np = self.ht[:, :n, :].numpy()
+        self.pre = torch.empty(gb, s * n, f, dtype=DT, device=dev)  # hidden pre-activation, then dL/d(pre)
+        self.ht = torch.ones(gb * s, n + 1, f, dtype=DT, device=dev)  # tanh activations, a ones row last
+        self.r = torch.empty(gb * s, k, f, dtype=DT, device=dev)  # residual
+        self.ew = torch.empty(gb * s, k, f, dtype=DT, device=dev)  # 2 w * residual = dL/dZ
+        self.sq_c = torch.empty(gb, s, k, n, dtype=DT, device=dev)
+        self.sq_d = torch.empty(gb, s, n, e, dtype=DT, device=dev)
+        self.sum_c = torch.empty(gb, s, dtype=DT, device=dev)
+        self.sum_d = torch.empty(gb, s, dtype=DT, device=dev)
+        # on the CPU, numpy views of the same memory: numpy's float64 tanh is SIMD (about 4x torch's here)
+        self.on_cpu = dev.type == "cpu"
+        self.pre_np = self.pre.view(gb * s, n, f).numpy() if self.on_cpu else None
+        self.h_np = self.ht[:, :n, :].numpy() if self.on_cpu else None
 
     def _split(self, part: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """This block's ``(size,)`` -> ``Dt (Gb, S, N, e + 1)``, ``Ct (Gb, S, k, N + 1)`` (views)."""
@@ -115,26 +129,34 @@ class _Block:
         """This block's slice of the whole flat ``(P,)`` as ``Dt``, ``Ct`` (views)."""
         return self._split(flat[self.offset:self.offset + self.size])
 
-    def __call__(self, theta: torch.Tensor, grad: torch.Tensor | None) -> float:
-        """Eq. 13 of this block's clusters; with ``grad`` its gradient written into the block's slice."""
+    def __call__(self, theta: torch.Tensor, grad: torch.Tensor | None) -> float | torch.Tensor:
+        """Eq. 13 of this block's clusters (a float on the CPU, a 0-d tensor on another device); with ``grad``
+        its gradient written into the block's slice."""
         gb, s, n, f = self.shape
         e, k = self.e, self.k
         dt, ct = self.views(theta)
         h = self.ht[:, :n, :]  # (Gb*S, N, F) view
         torch.bmm(dt.view(gb, s * n, e + 1), self.xt.transpose(1, 2), out=self.pre)
-        np.tanh(self.pre_np, out=self.h_np)  # h = tanh(pre), into the activation buffer
+        if self.on_cpu:
+            np.tanh(self.pre_np, out=self.h_np)  # h = tanh(pre), into the activation buffer
+        else:
+            torch.tanh(self.pre.view(gb * s, n, f), out=h)
         torch.bmm(ct.view(gb * s, k, n + 1), self.ht, out=self.r)
         r4 = self.r.view(gb, s, k, f)
         r4.sub_(self.zt)
         torch.mul(r4, self.w2, out=self.ew.view(gb, s, k, f))
-        data = 0.5 * float(torch.dot(self.ew.view(-1), self.r.view(-1)))
+        data_t = torch.dot(self.ew.view(-1), self.r.view(-1))
         c, dw = ct[..., :n], dt[..., :e]
         torch.mul(c, c, out=self.sq_c)
         torch.mul(dw, dw, out=self.sq_d)
         torch.sum(self.sq_c, dim=(2, 3), out=self.sum_c)
         torch.sum(self.sq_d, dim=(2, 3), out=self.sum_d)
         self.sum_c.add_(self.sum_d)
-        pen = float(torch.dot(self.alpha.view(-1), self.sum_c.view(-1)))
+        pen_t = torch.dot(self.alpha.view(-1), self.sum_c.view(-1))
+        if self.on_cpu:
+            data, pen = 0.5 * float(data_t), float(pen_t)
+        else:  # stays on the device: no sync per block
+            data, pen = 0.5 * data_t, pen_t
         if grad is None:
             return data + pen
         gd, gc = self.views(grad)
@@ -200,24 +222,27 @@ class MLPObjective:
         f, d = x.shape
         s, g, n = neuron_mask.shape
         k = z.shape[2]
+        dev = x.device
         check(z.shape[:2] == (f, g) and out_mask.shape == (g, k),
               f"mlp fit: targets {tuple(z.shape)} / out_mask {tuple(out_mask.shape)} do not match inputs ({f}) / "
               f"clusters ({g})")
         check(sample_weight.shape == (s, f) and alpha.shape == (s, g), "mlp fit: bad sample_weight/alpha shapes")
-        im = torch.ones(g, d, dtype=DT) if input_mask is None else input_mask.to(DT)
+        im = torch.ones(g, d, dtype=DT, device=dev) if input_mask is None else input_mask.to(dev, DT)
         check(im.shape == (g, d), f"mlp fit: input_mask must be ({g}, {d}), got {tuple(im.shape)}")
-        om = out_mask.to(DT)
+        om = out_mask.to(dev, DT)
         for name, m in (("neuron_mask", neuron_mask), ("out_mask", om), ("input_mask", im)):
             check(bool(((m == 0) | (m == 1)).all()), f"mlp fit: {name} must be 0/1")
         self.shape = (s, g, n, d, k)
-        cols = [torch.nonzero(im[i] != 0).flatten() for i in range(g)]
+        # the block layout is planned on the CPU (small index tensors); the data stays on the device
+        im_h, om_h = im.cpu(), om.cpu()
+        cols = [torch.nonzero(im_h[i] != 0).flatten() for i in range(g)]
         # real outputs: up to the last unmasked one (a masked one before it stays masked in the block)
-        kg = [int(torch.nonzero(om[i] != 0).max()) + 1 if bool((om[i] != 0).any()) else 0 for i in range(g)]
-        x, z, w = x.to(DT), z.to(DT), sample_weight.to(DT)
-        a, nm = alpha.to(DT), neuron_mask.to(DT)
+        kg = [int(torch.nonzero(om_h[i] != 0).max()) + 1 if bool((om_h[i] != 0).any()) else 0 for i in range(g)]
+        x, z, w = x.to(DT), z.to(dev, DT), sample_weight.to(dev, DT)
+        a, nm = alpha.to(dev, DT), neuron_mask.to(dev, DT)
         # settings with the same sample weights (a CV fold's alphas) share the frames they weigh: zero-weight
         # frames (the held-out fold) are left out of the products (exact: they add zeros)
-        rows, inv = torch.unique(w, dim=0, return_inverse=True)
+        rows, inv = torch.unique(w.cpu(), dim=0, return_inverse=True)
         if len(rows) > max_groups:
             settings = [(torch.arange(s), torch.arange(f))]
         else:
@@ -241,8 +266,8 @@ class MLPObjective:
         self.mask = torch.cat([b.mask for b in self.blocks])
 
     def pack(self, p: MLPParams) -> torch.Tensor:
-        """Batched parameters (masked) -> a new flat ``theta (P,)``."""
-        theta = torch.empty(self.size, dtype=DT)
+        """Batched parameters (masked, on the objective's device) -> a new flat ``theta (P,)`` there."""
+        theta = torch.empty(self.size, dtype=DT, device=self.mask.device)
         for b in self.blocks:
             gb, s, n, _ = b.shape
             dt, ct = b.views(theta)
@@ -258,14 +283,15 @@ class MLPObjective:
     def unpack(self, theta: torch.Tensor) -> MLPParams:
         """Flat ``theta (P,)`` -> new batched ``MLPParams`` (``D (S, G, N, d)`` ... ``c0 (S, G, K)``)."""
         s, g, n, d, k = self.shape
+        dev = self.mask.device
         theta = theta.detach() * self.mask
-        D, d0 = torch.zeros(g, s, n, d, dtype=DT), torch.zeros(g, s, n, dtype=DT)
-        C, c0 = torch.zeros(g, s, k, n, dtype=DT), torch.zeros(g, s, k, dtype=DT)
+        D, d0 = torch.zeros(g, s, n, d, dtype=DT, device=dev), torch.zeros(g, s, n, dtype=DT, device=dev)
+        C, c0 = torch.zeros(g, s, k, n, dtype=DT, device=dev), torch.zeros(g, s, k, dtype=DT, device=dev)
         for b in self.blocks:
             gb, sb = len(b.idx), len(b.sidx)
             dt, ct = b.views(theta)
             gi, si = b.idx[:, None], b.sidx[None, :]
-            dfull = torch.zeros(gb, sb, n, d, dtype=DT)
+            dfull = torch.zeros(gb, sb, n, d, dtype=DT, device=dev)
             D[gi, si] = dfull.scatter_add_(3, b.gather[:, None, None, :].expand(gb, sb, n, b.e), dt[..., :b.e])
             d0[gi, si] = dt[..., b.e]
             C[gi, si, :b.k] = ct[..., :n]
@@ -277,7 +303,7 @@ class MLPObjective:
         total = sum(b(theta, grad) for b in self.blocks)
         if grad is not None:
             grad.mul_(self.mask)
-        return total
+        return float(total)
 
 
 def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_weight: torch.Tensor,
@@ -286,8 +312,9 @@ def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_wei
             progress: Callable[[int, float], None] | None = None,
             init_linear: tuple[torch.Tensor, torch.Tensor] | None = None,
             init_gain: float = 0.5, threads: int = 1,
-            input_mask: torch.Tensor | None = None) -> tuple[MLPParams, float, int]:
-    """Fit the batch; returns masked parameters (float64), the final objective and iterations run.
+            input_mask: torch.Tensor | None = None,
+            device: torch.device | str | None = None) -> tuple[MLPParams, float, int]:
+    """Fit the batch; returns masked parameters (float64, on the CPU), the final objective and iterations run.
 
     ``x (F, d)``, ``z (F, G, K)`` reduced targets, ``out_mask (G, K)`` real output dims,
     ``sample_weight (S, F)``, ``alpha (S, G)``, ``neuron_mask (S, G, N)``.
@@ -303,13 +330,21 @@ def fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_wei
     ``threads``: torch intra-op threads while fitting (restored after; 0 leaves torch's setting).
     The L-BFGS two-loop recursion is many small vector ops whose thread synchronisation dominates
     on a busy machine: one thread measured 10x faster on 2 shared cores.
+    ``device``: where to fit (None: where ``x`` is); every input is moved there once.
     """
+    dev = x.device if device is None else torch.device(device)
+    x, z, out_mask, sample_weight, alpha, neuron_mask = (
+        t.to(dev) for t in (x, z, out_mask, sample_weight, alpha, neuron_mask))
+    input_mask = None if input_mask is None else input_mask.to(dev)
+    if init_linear is not None:
+        init_linear = (init_linear[0].to(dev), init_linear[1].to(dev))
     before = torch.get_num_threads()
     if threads:
         torch.set_num_threads(threads)
     try:
-        return _fit_mlp(x, z, out_mask, sample_weight, alpha, neuron_mask, max_iter, seed, history_size, chunk,
-                        progress, init_linear, init_gain, input_mask)
+        params, loss, iters = _fit_mlp(x, z, out_mask, sample_weight, alpha, neuron_mask, max_iter, seed,
+                                       history_size, chunk, progress, init_linear, init_gain, input_mask)
+        return params.to("cpu"), loss, iters
     finally:
         torch.set_num_threads(before)
 
@@ -318,36 +353,39 @@ def init_params(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample
                 alpha: torch.Tensor, neuron_mask: torch.Tensor, seed: int = 0,
                 init_linear: tuple[torch.Tensor, torch.Tensor] | None = None, init_gain: float = 0.5,
                 input_mask: torch.Tensor | None = None) -> MLPParams:
-    """The masked float64 starting point of :func:`fit_mlp` (same arguments; see there)."""
+    """The masked float64 starting point of :func:`fit_mlp` (same arguments; see there), on ``x``'s device (the
+    random hidden layer is drawn on the CPU, so every device starts from the same point)."""
+    dev = x.device
     x = x.to(DT)
-    z = z.to(DT)
+    z = z.to(dev, DT)
     f, d = x.shape
     s, g, n = neuron_mask.shape
     k = z.shape[2]
     check(z.shape[:2] == (f, g), f"mlp fit: targets {tuple(z.shape)} do not match inputs ({f}) / clusters ({g})")
     check(sample_weight.shape == (s, f) and alpha.shape == (s, g), "mlp fit: bad sample_weight/alpha shapes")
-    nm = neuron_mask.to(DT)
-    im = torch.ones(g, d, dtype=DT) if input_mask is None else input_mask.to(DT)
+    nm = neuron_mask.to(dev, DT)
+    im = torch.ones(g, d, dtype=DT, device=dev) if input_mask is None else input_mask.to(dev, DT)
     check(im.shape == (g, d), f"mlp fit: input_mask must be ({g}, {d}), got {tuple(im.shape)}")
     dm = nm.unsqueeze(-1) * im[None, :, None, :]  # (S, G, N, d) hidden-weight mask
-    om = out_mask.to(DT)
-    w = sample_weight.to(DT)
-    a = alpha.to(DT)
+    om = out_mask.to(dev, DT)
+    w = sample_weight.to(dev, DT)
+    a = alpha.to(dev, DT)
     gen = torch.Generator().manual_seed(int(seed))
-    D = torch.randn(s, g, n, d, generator=gen, dtype=DT) / max(d, 1) ** 0.5 * dm
-    d0 = 0.5 * torch.randn(s, g, n, generator=gen, dtype=DT) * nm
+    D = torch.randn(s, g, n, d, generator=gen, dtype=DT).to(dev) / max(d, 1) ** 0.5 * dm
+    d0 = 0.5 * torch.randn(s, g, n, generator=gen, dtype=DT).to(dev) * nm
     # output layer by weighted ridge on the random hidden activations (exact for that hidden layer)
     h = torch.tanh(torch.einsum("fd,sgnd->sgfn", x, D) + d0.unsqueeze(2)) * nm.unsqueeze(2)
-    h1 = torch.cat([h, torch.ones(s, g, f, 1, dtype=DT)], dim=3)
+    h1 = torch.cat([h, torch.ones(s, g, f, 1, dtype=DT, device=dev)], dim=3)
     hw = h1 * w[:, None, :, None]
-    reg = torch.diag_embed(torch.cat([a.unsqueeze(-1).expand(s, g, n), torch.zeros(s, g, 1, dtype=DT)], -1))
-    lhs = hw.transpose(2, 3) @ h1 + reg + 1e-9 * torch.eye(n + 1, dtype=DT)
+    reg = torch.diag_embed(torch.cat([a.unsqueeze(-1).expand(s, g, n), torch.zeros(s, g, 1, dtype=DT, device=dev)],
+                                     -1))
+    lhs = hw.transpose(2, 3) @ h1 + reg + 1e-9 * torch.eye(n + 1, dtype=DT, device=dev)
     rhs = hw.transpose(2, 3) @ z.permute(1, 0, 2).unsqueeze(0)  # (S, G, N+1, K)
     sol = torch.linalg.solve(lhs, rhs)
     C = sol[:, :, :n, :].transpose(2, 3) * nm.unsqueeze(2) * om[None, :, :, None]
     c0 = sol[:, :, n, :] * om
     if init_linear is not None:
-        w_lin, b_lin = (t.to(DT) for t in init_linear)
+        w_lin, b_lin = (t.to(dev, DT) for t in init_linear)
         check(w_lin.shape == (s, g, d, k) and b_lin.shape == (s, g, k), "mlp fit: bad init_linear shapes")
         u, sig, vh = torch.linalg.svd(w_lin, full_matrices=False)  # (S,G,d,r) (S,G,r) (S,G,r,K)
         r = min(n, sig.shape[-1])

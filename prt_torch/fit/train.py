@@ -10,6 +10,9 @@ when present) and writes into the run directory (:class:`prt_torch.rundir.RunDir
                          the sha256 of every file above and of metrics.json
     metrics.json         visibility errors per kind on train and held-out frames
 
+The fit runs on ``train.device`` (:mod:`prt_torch.fit.device`: the CPU reference path, or CUDA); the models
+are always assembled and saved on the CPU.
+
 One committed unit: the stage first drops its ``stages.json`` key and stale temporaries
 (:meth:`RunDir.begin`), writes the models, the default link and the metrics (each atomically), then
 ``model.json`` LAST (the commit record), then its ``stages.json`` key. A kill before ``model.json`` is
@@ -30,6 +33,7 @@ import torch
 from prt_torch.bake.store import BakedDataset, SplitData, open_dataset
 from prt_torch.errors import PrtError, check
 from prt_torch.fit.config import TrainConfig
+from prt_torch.fit.device import Array, concat, fit_device, host, like, permute, resolve_device, stack, zeros
 from prt_torch.fit.folds import blocked_folds
 from prt_torch.fit.inputs import JointInputs, joint_inputs, load_skinning
 from prt_torch.fit.mlp import fit_mlp
@@ -124,51 +128,63 @@ def _ends(red: Reduced, kind: str = "quadratic") -> tuple[InputProjection, Outpu
     return inp, OutputUnprojection(basis, gather, mean, red.out.n_vertices, red.out.n_coeffs)
 
 
-def _masked_ridge_cv(x: np.ndarray, z: np.ndarray, mask: np.ndarray, folds: np.ndarray, grid: np.ndarray,
-                     in_mask: np.ndarray | None) -> np.ndarray:
-    """``ridge_cv`` with cluster ``g`` restricted to the inputs ``in_mask[g]`` -> ``(A, G)``."""
+def _masked_ridge_cv(x: Array, z: Array, mask: Array, folds: np.ndarray, grid: np.ndarray,
+                     in_mask: np.ndarray | None) -> Array:
+    """``ridge_cv`` with cluster ``g`` restricted to the inputs ``in_mask[g]`` -> ``(A, G)`` (numpy arrays, or
+    tensors on ``x``'s device)."""
     if in_mask is None:
         return ridge_cv(x, z, mask, folds, grid)
-    return np.concatenate([ridge_cv(x * in_mask[g], z[:, g:g + 1], mask[g:g + 1], folds, grid)
-                           for g in range(z.shape[1])], axis=1)
+    in_mask = like(in_mask, x)
+    return concat([ridge_cv(x * in_mask[g], z[:, g:g + 1], mask[g:g + 1], folds, grid)
+                   for g in range(z.shape[1])], axis=1)
 
 
-def _masked_ridge(x: np.ndarray, z: np.ndarray, alpha: np.ndarray, in_mask: np.ndarray | None,
-                  sample_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _masked_ridge(x: Array, z: Array, alpha: np.ndarray, in_mask: np.ndarray | None,
+                  sample_mask: Array | None = None) -> tuple[Array, Array]:
     """Ridge with one ``alpha (G,)`` per cluster (each on its own inputs): ``weight (d, G, K)``, ``bias (G, K)``.
-    A zeroed input column gets a zero weight (minimum-norm solution)."""
+    A zeroed input column gets a zero weight (minimum-norm solution). Numpy arrays, or tensors on ``x``'s device."""
     g = z.shape[1]
     if in_mask is None:
         in_mask = np.ones((g, x.shape[1]), dtype=bool)
-    w = np.zeros((x.shape[1], g, z.shape[2]))
-    b = np.zeros((g, z.shape[2]))
+    in_mask = like(in_mask, x)
+    w = zeros((x.shape[1], g, z.shape[2]), x)
+    b = zeros((g, z.shape[2]), x)
     for i in range(g):
         wi, bi = ridge_path(x * in_mask[i], z[:, i], np.asarray([alpha[i]]), sample_mask)
         w[:, i], b[i] = wi[0] * in_mask[i][:, None], bi[0]
     return w, b
 
 
-def fit_ridge_kind(kind: str, red: Reduced, alphas: list[float], fixed_alpha: float | None = None) -> FitResult:
-    """Linear or quadratic ridge; alpha per cluster by blocked CV unless ``fixed_alpha``."""
+def fit_ridge_kind(kind: str, red: Reduced, alphas: list[float], fixed_alpha: float | None = None,
+                   device: torch.device | None = None) -> FitResult:
+    """Linear or quadratic ridge; alpha per cluster by blocked CV unless ``fixed_alpha``. ``device``: None = the
+    numpy reference path on the CPU, else the solves run there (data moved once); the model is on the CPU."""
     t0 = time.perf_counter()
     xin, in_mask = red.inputs(kind)
     x = torch.as_tensor(xin)
-    feats = (quadratic_features(x) if kind == "quadratic" else x).numpy()
+    if device is None:
+        feats: Array = (quadratic_features(x) if kind == "quadratic" else x).numpy()
+        z, zmask = red.z, red.mask
+    else:
+        x = x.to(device)
+        feats = quadratic_features(x) if kind == "quadratic" else x
+        z, zmask = like(red.z, x), like(red.mask, x)
     g = red.z.shape[1]
     choice: dict[str, Any] = {}
     if fixed_alpha is None:
         grid = np.asarray(alphas, dtype=np.float64)
-        cv = _masked_ridge_cv(feats, red.z, red.mask, red.folds, grid, in_mask)  # (A, G)
+        cv = host(_masked_ridge_cv(feats, z, zmask, red.folds, grid, in_mask))  # (A, G)
         best = grid[np.argmin(cv, axis=0)]
         choice = {"alphas": grid.tolist(), "cv_error": cv.sum(axis=1).tolist(), "alpha": best.tolist()}
     else:
         best = np.full(g, float(fixed_alpha))
         choice = {"alpha": best.tolist()}
     if in_mask is None:
-        w, b = fit_ridge_per_group(feats, red.z, best)
+        w, b = fit_ridge_per_group(feats, z, best)
     else:
-        w, b = _masked_ridge(feats, red.z, best, in_mask)
+        w, b = _masked_ridge(feats, z, best, in_mask)
         choice["inputs_per_cluster"] = in_mask.sum(1).tolist()
+    w, b = host(w), host(b)
     cls = QuadraticRegressor if kind == "quadratic" else LinearRegressor
     reg = cls(xin.shape[1], g, red.z.shape[2])
     with torch.no_grad():
@@ -179,14 +195,19 @@ def fit_ridge_kind(kind: str, red: Reduced, alphas: list[float], fixed_alpha: fl
     return FitResult(kind, model, time.perf_counter() - t0, choice)
 
 
-def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitResult:
-    """Per-cluster tanh MLP: (neurons, alpha) per cluster by blocked CV, then one final L-BFGS."""
+def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None, device: torch.device | None = None) -> FitResult:
+    """Per-cluster tanh MLP: (neurons, alpha) per cluster by blocked CV, then one final L-BFGS. ``device``: None =
+    the reference path on the CPU, else the ridge starts, the L-BFGS fits and the CV errors run there (the
+    training data moved once); the model is on the CPU."""
     t0 = time.perf_counter()
+    dev = torch.device("cpu") if device is None else device
     xin, in_mask = red.inputs("mlp")
-    x = torch.as_tensor(xin)
-    im = None if in_mask is None else torch.as_tensor(in_mask)
-    z = torch.as_tensor(red.z)
-    om = torch.as_tensor(red.mask)
+    x = torch.as_tensor(xin).to(dev)
+    im = None if in_mask is None else torch.as_tensor(in_mask).to(dev)
+    z = torch.as_tensor(red.z).to(dev)
+    om = torch.as_tensor(red.mask).to(dev)
+    # the ridge starts' data: numpy on the reference path, the tensors above otherwise
+    rx, rz, rmask = (xin, red.z, red.mask) if device is None else (x, z, om)
     g = z.shape[1]
     folds = np.unique(red.folds[red.folds >= 0])  # fold -1: always training (cv_validate: clips)
     alphas = np.asarray(cfg.mlp_alphas, dtype=np.float64)
@@ -201,38 +222,39 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
 
     # L-BFGS starts from the ridge-linear solution (alpha per cluster by the same blocked CV)
     lin_grid = np.asarray(cfg.alphas, dtype=np.float64)
-    lin_alpha = lin_grid[np.argmin(_masked_ridge_cv(xin, red.z, red.mask, red.folds, lin_grid, in_mask), axis=0)]
+    lin_alpha = lin_grid[np.argmin(host(_masked_ridge_cv(rx, rz, rmask, red.folds, lin_grid, in_mask)), axis=0)]
 
-    def linear_init(train_mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def linear_init(train_mask: np.ndarray | None) -> tuple[Array, Array]:
+        tm = None if train_mask is None else like(train_mask, rx)
         if in_mask is not None:
-            w, b = _masked_ridge(xin, red.z, lin_alpha, in_mask, train_mask)  # (d, G, K), (G, K)
-            return np.transpose(w, (1, 0, 2)) * red.mask[:, None, :], b * red.mask
+            w, b = _masked_ridge(rx, rz, lin_alpha, in_mask, tm)  # (d, G, K), (G, K)
+            return permute(w, (1, 0, 2)) * rmask[:, None, :], b * rmask
         uniq, inv = np.unique(lin_alpha, return_inverse=True)
-        w, b = ridge_path(xin, red.z, uniq, train_mask)  # (U, d, G, K), (U, G, K)
-        gi = np.arange(g)
-        return np.transpose(w[inv, :, gi], (0, 1, 2)) * red.mask[:, None, :], b[inv, gi] * red.mask
+        w, b = ridge_path(rx, rz, uniq, tm)  # (U, d, G, K), (U, G, K)
+        inv, gi = like(inv, w), like(np.arange(g), w)
+        return w[inv, :, gi] * rmask[:, None, :], b[inv, gi] * rmask
 
     cv = np.zeros((len(neurons), len(alphas), g))
     if len(neurons) * len(alphas) > 1:
         n_s = len(folds) * len(alphas)
         fold_of = np.repeat(folds, len(alphas))
         alpha_of = np.tile(alphas, len(folds))
-        weight = torch.as_tensor((red.folds[None, :] != fold_of[:, None]).astype(np.float64))
-        alpha_t = torch.as_tensor(np.repeat(alpha_of[:, None], g, axis=1))
+        weight = torch.as_tensor((red.folds[None, :] != fold_of[:, None]).astype(np.float64)).to(dev)
+        alpha_t = torch.as_tensor(np.repeat(alpha_of[:, None], g, axis=1)).to(dev)
         inits = {f: linear_init(red.folds != f) for f in folds}
-        init = (torch.as_tensor(np.stack([inits[f][0] for f in fold_of])),
-                torch.as_tensor(np.stack([inits[f][1] for f in fold_of])))
+        init = (torch.as_tensor(stack([inits[f][0] for f in fold_of])).to(dev),
+                torch.as_tensor(stack([inits[f][1] for f in fold_of])).to(dev))
+        held = torch.as_tensor((red.folds[None, :] == fold_of[:, None]).astype(np.float64)).to(dev)
         for i, n in enumerate(neurons):
-            params, _, _ = fit_mlp(x, z, om, weight, alpha_t, torch.ones(n_s, g, n), max_iter=cfg.cv_iter,
-                                   seed=cfg.seed, history_size=cfg.history_size, progress=report(f"CV N={n}"),
-                                   init_linear=init, input_mask=im)
+            params, _, _ = fit_mlp(x, z, om, weight, alpha_t, torch.ones(n_s, g, n, device=dev),
+                                   max_iter=cfg.cv_iter, seed=cfg.seed, history_size=cfg.history_size,
+                                   progress=report(f"CV N={n}"), init_linear=init, input_mask=im, device=device)
             with torch.no_grad():
                 from prt_torch.fit.mlp import mlp_forward
 
-                pred = mlp_forward(x.double(), params)  # (S, G, F, K)
+                pred = mlp_forward(x.double(), params.to(dev))  # (S, G, F, K)
             err = ((pred - z.permute(1, 0, 2).unsqueeze(0)) * om[None, :, None, :]).pow(2).sum(-1)  # (S, G, F)
-            held = torch.as_tensor((red.folds[None, :] == fold_of[:, None]).astype(np.float64))
-            e = (err * held[:, None, :]).sum(-1).numpy()  # (S, G)
+            e = host((err * held[:, None, :]).sum(-1))  # (S, G)
             cv[i] = e.reshape(len(folds), len(alphas), g).sum(0)
         flat = cv.reshape(-1, g)
         best = np.argmin(flat, axis=0)
@@ -242,13 +264,14 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
         best_n = np.full(g, neurons[0])
         best_a = np.full(g, alphas[0])
     nmax = int(best_n.max())
-    nmask = torch.as_tensor((np.arange(nmax)[None, :] < best_n[:, None]).astype(np.float64)).unsqueeze(0)
+    nmask = torch.as_tensor((np.arange(nmax)[None, :] < best_n[:, None]).astype(np.float64)).unsqueeze(0).to(dev)
     w0, b0 = linear_init(None)
-    params, loss, iters = fit_mlp(x, z, om, torch.ones(1, x.shape[0]), torch.as_tensor(best_a)[None], nmask,
+    params, loss, iters = fit_mlp(x, z, om, torch.ones(1, x.shape[0], device=dev),
+                                  torch.as_tensor(best_a)[None].to(dev), nmask,
                                   max_iter=cfg.max_iter, seed=cfg.seed, history_size=cfg.history_size,
                                   progress=report("final"),
-                                  init_linear=(torch.as_tensor(w0)[None], torch.as_tensor(b0)[None]),
-                                  input_mask=im)
+                                  init_linear=(torch.as_tensor(w0)[None].to(dev), torch.as_tensor(b0)[None].to(dev)),
+                                  input_mask=im, device=device)
     if progress is not None:
         progress.remove_task(task)
     reg = MLPRegressor(xin.shape[1], g, red.z.shape[2], nmax)
@@ -265,15 +288,16 @@ def fit_mlp_kind(red: Reduced, cfg: TrainConfig, progress: Any = None) -> FitRes
 
 
 def fit_kinds(red: Reduced, cfg: TrainConfig, progress: Any = None) -> dict[str, FitResult]:
-    """Fit every kind of ``cfg.kinds``."""
+    """Fit every kind of ``cfg.kinds`` on ``cfg.device`` (:func:`prt_torch.fit.device.fit_device`)."""
     out: dict[str, FitResult] = {}
+    device = fit_device(cfg.device)
     for kind in cfg.kinds:
         _log(progress, f"fitting {kind} ({red.x.shape[0]} frames, {red.inputs(kind)[0].shape[1]} inputs, "
-                       f"{red.z.shape[1]} clusters x {red.z.shape[2]} outputs)")
+                       f"{red.z.shape[1]} clusters x {red.z.shape[2]} outputs) on {device or 'cpu'}")
         if kind == "mlp":
-            out[kind] = fit_mlp_kind(red, cfg, progress)
+            out[kind] = fit_mlp_kind(red, cfg, progress, device)
         else:
-            out[kind] = fit_ridge_kind(kind, red, cfg.alphas)
+            out[kind] = fit_ridge_kind(kind, red, cfg.alphas, device=device)
         _log(progress, f"{kind}: fitted in {out[kind].fit_s:.2f} s")
     return out
 
@@ -308,6 +332,7 @@ def _metadata(info: BakedDataset, cfg: TrainConfig, red: Reduced, fits: dict[str
         "train_clips": train.clips,
         "train_frames": train.n_frames,
         "train_config": cfg.model_dump(),
+        "fit_device": resolve_device(cfg.device),
         "fit": {k: {"fit_s": r.fit_s, **r.choice} for k, r in fits.items()},
     }
 
@@ -319,14 +344,23 @@ def unit_files(run: RunDir, kinds: list[str]) -> list[Path]:
 
 
 def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
-    """The ``train`` stage key: the training settings and the dataset's content key."""
-    return stage_key({"train": cfg.model_dump(mode="json"), "dataset": ds.key()})
+    """The ``train`` stage key: the training settings and the dataset's content key. ``device`` enters as the
+    device it resolves to, and only when that is not the CPU: a CPU fit (``auto`` without a GPU, or ``cpu``) is
+    the reference path, bit-identical to fits from before the setting existed, so their keys stay valid; a CUDA
+    fit agrees with it only to rounding, so it is keyed apart (``cuda`` without a GPU: one-line PrtError)."""
+    settings = cfg.model_dump(mode="json")
+    settings.pop("device")
+    device = resolve_device(cfg.device)
+    if device != "cpu":
+        settings["device"] = device
+    return stage_key({"train": settings, "dataset": ds.key()})
 
 
 def train_dataset(dataset: str | Path | BakedDataset, run_dir: str | Path | RunDir, cfg: TrainConfig | None = None,
                   progress: Any = None) -> dict[str, Any]:
     """Train every kind on ``dataset`` and write the run files into ``run_dir``; returns metrics."""
     cfg = cfg or TrainConfig()
+    resolve_device(cfg.device)  # cuda without a GPU fails here, before the run's train stage is touched
     run = RunDir.of(run_dir)
     ds = dataset if isinstance(dataset, BakedDataset) else open_dataset(dataset)
     torch.manual_seed(cfg.seed)
