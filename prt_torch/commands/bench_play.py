@@ -22,6 +22,11 @@ On the exported run (default ``runs/demo``: built-in character ~11.7k vertices, 
   47k vertices, with a synthetic model of the run's structure: its MLP, per-cluster bases of its sizes, random
   values) and against crowd size; plotted to ``--plot``.
 
+* the posing as an ONNX graph (:mod:`prt_torch.export.posing_graph`, exported into the temporary directory; needs
+  torch) next to the numpy posing: ``posing_onnx``, ``frame_posing_onnx`` (it + the fused call, two ORT calls) and
+  ``frame_chained`` (ONE ORT call: the posing graph chained into the fused graph) - a measurement, not the shipping
+  path;
+
 JSON keys (``--json``): ``fps``, ``roofline_fraction``, ``steps: {NAME: {ms, bound_ms, bytes, flops, bound_by}}``,
 ``batched_character_fps``, ``speedup_vs_raytrace``, ``bytes_model``, ``crowd``, ``precisions``, ``machine``
 (``copy_bandwidth_gb_s``, ``gemm_gflop_s``), ``scaling`` (with ``--scaling``).
@@ -232,7 +237,9 @@ def run(args: argparse.Namespace) -> int:
 
     # -- per-frame path: fused frames, split frames, precision variants, interleaved ------------------------
     times: dict[str, list[float]] = {k: [] for k in ("posing", "fused", "frame", "split_posing", "visibility",
-                                                      "shading", *(f"visibility_{p}" for p in prec_graphs))}
+                                                      "shading", *(f"visibility_{p}" for p in prec_graphs),
+                                                      "posing_onnx", "frame_posing_onnx", "frame_chained")}
+    posing_onnx = _posing_onnx(player, run, Path(tmp.name), args.threads, args.device)  # None without torch
     blocks: list[float] = []
     with console.status(f"timing {args.repeats} x {args.frames} frames on '{clip}' ..."):
         for rep in range(args.repeats):
@@ -252,6 +259,16 @@ def run(args: argparse.Namespace) -> int:
                 split.shade(s2, visibility=vis, checked=False)
                 t5 = time.perf_counter()
                 pt = {}
+                if posing_onnx is not None:  # issue 14 item 3: the posing in ONNX, and chained with the fused graph
+                    pg, cg, cfeeds = posing_onnx
+                    loc32 = loc.astype(np.float32)
+                    ta = time.perf_counter()
+                    pg.run_unchecked({"local": loc32, "eye": cfeeds["posing/eye"]})
+                    tb = time.perf_counter()
+                    cfeeds["posing/local"] = loc32
+                    cg.run_unchecked(cfeeds)
+                    pt.update({"posing_onnx": tb - ta, "frame_posing_onnx": tb - ta + t2 - t1,
+                               "frame_chained": time.perf_counter() - tb})
                 for p, g in prec_graphs.items():
                     ta = time.perf_counter()
                     g.run_unchecked({"pose": s2.features})
@@ -262,7 +279,7 @@ def run(args: argparse.Namespace) -> int:
                              ("visibility", t4 - t3), ("shading", t5 - t4)):
                     times[k].append(v)
                 for p, v in pt.items():
-                    times[f"visibility_{p}"].append(v)
+                    times[p if p in times else f"visibility_{p}"].append(v)
                 block.append(t2 - t0)
             blocks.append(_median_ms(block))
     frame_ms = _median_ms(times["frame"])
@@ -325,6 +342,10 @@ def run(args: argparse.Namespace) -> int:
     steps["frame"]["bound_ms"] = steps["posing"]["bound_ms"] + steps["fused"]["bound_ms"]
     steps["frame"]["fraction"] = steps["frame"]["bound_ms"] / steps["frame"]["ms"]
     roofline_fraction = steps["frame"]["fraction"]
+    if times["posing_onnx"]:  # same bytes / FLOPs as the numpy steps they replace
+        for name, like in (("posing_onnx", "posing"), ("frame_posing_onnx", "frame"), ("frame_chained", "frame")):
+            ms = _median_ms(times[name])
+            steps[name] = {**steps[like], "ms": ms, "fraction": steps[like]["bound_ms"] / ms}
 
     precision_rows = {}
     for p, g in prec_graphs.items():
@@ -398,6 +419,26 @@ def _precision_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, 
                     {"pose": {0: "B"}, "visibility": {0: "B"}}, int8_weights=BASIS_PATTERN if p == "int8" else None)
         out[p] = OrtGraph(path, threads=threads, device=device)
     return out
+
+
+def _posing_onnx(player: Any, run: Any, tmp: Path, threads: int, device: str) -> tuple[Any, Any, dict] | None:
+    """The posing graph and the posing + fused chained graph of the player's run (exported into ``tmp``) with the
+    chained graph's constant feeds, or ``None`` without torch."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        return None
+    from prt_torch.export.posing_graph import PosingGraph, chain_posing_fused, export_posing_graph
+    from prt_torch.runtime.session import OrtGraph
+
+    b = player.bundle
+    g = PosingGraph(player.character, b.cluster, b.cluster_axis, b.cluster_bone, order=player.vertex_order)
+    path = export_posing_graph(g, tmp / "posing.onnx")
+    chained = chain_posing_fused(path, run.graph_path("fused"), tmp / "posing_fused.onnx")
+    state = player.pose(player.clip_locals(next(iter(player.character.clips)))[:1])
+    feeds = {k: v for k, v in player._fused_feeds(state).items() if k not in ("pose", "frames", "view_dirs")}
+    feeds["posing/eye"] = np.asarray(player.eye, np.float32)
+    return (OrtGraph(path, threads=threads, device=device), OrtGraph(chained, threads=threads, device=device), feeds)
 
 
 def _raytrace(player: Any, split: Any, run: Any, locals_: np.ndarray, args: argparse.Namespace,
