@@ -1,4 +1,4 @@
-"""``prt play RUN --clip NAME | --motion FILE.bvh [--env FILE] [--brdf NAME] [--out video.mp4]``: onnxruntime
+"""``prt play RUN --clip NAME | --motion FILE.bvh | --scene FILE [--env FILE] [--brdf NAME] [--out video.mp4]``: onnxruntime
 playback (a motion file is retargeted onto the run's character by :mod:`prt_torch.rig.retarget`, torch-free)."""
 
 from __future__ import annotations
@@ -62,8 +62,10 @@ def run(args: argparse.Namespace) -> int:
     limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
     if not math.isfinite(args.light_angle):
         raise PrtError(f"--light-angle must be a finite number of degrees, got {args.light_angle}")
-    if (args.clip is None) == (args.motion is None):
-        raise PrtError("give exactly one of --clip NAME or --motion FILE")
+    if args.clip is not None and args.motion is not None:
+        raise PrtError("give --clip NAME or --motion FILE, not both")
+    if args.clip is None and args.motion is None and getattr(args, "scene", None) is None:
+        raise PrtError("give exactly one of --clip NAME or --motion FILE")  # a --scene file may name its clips
     if args.clip is not None and not args.clip.strip():
         raise PrtError("--clip: empty clip name")
     if args.motion is not None:

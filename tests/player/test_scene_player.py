@@ -159,3 +159,26 @@ def test_scene_camera_is_the_players_orbit_camera(scene_run) -> None:  # noqa: F
     finally:
         sp.close()
         plain.close()
+
+
+def test_play_scene_file_with_its_own_clips_needs_no_clip_flag(scene_run, tmp_path, capsys) -> None:  # noqa: F811
+    """``prt play RUN --scene FILE`` takes each character's clip from the file; an entry without one (and no
+    ``--clip``) is a one-line error, as is ``--clip`` with ``--motion``."""
+    import yaml
+
+    from prt_torch.cli import main
+
+    good = tmp_path / "two.yaml"
+    good.write_text(yaml.safe_dump({"scene": {"ground": {"resolution": 8}, "characters": [
+        {"clip": "wave"}, {"clip": "walk", "offset": [40.0, 0.0, 0.0]}]}}))
+    out = tmp_path / "png"
+    assert main(["play", str(scene_run), "--scene", str(good), "--png", str(out), "--max-frames", "1"]) == 0
+    assert (out / "frame_00000.png").is_file()
+    capsys.readouterr()
+    bad = tmp_path / "noclip.yaml"
+    bad.write_text(yaml.safe_dump({"scene": {"characters": [{"offset": [0.0, 0.0, 0.0]}]}}))
+    assert main(["play", str(scene_run), "--scene", str(bad), "--png", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no clip" in err[0], err
+    assert main(["play", str(scene_run), "--clip", "wave", "--motion", str(good), "--png", str(out)]) == 2
+    assert "not both" in capsys.readouterr().err
