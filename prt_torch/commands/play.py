@@ -1,5 +1,6 @@
-"""``prt play RUN --clip NAME | --motion FILE.bvh | --scene FILE [--env FILE] [--brdf NAME] [--out video.mp4]``: onnxruntime
-playback (a motion file is retargeted onto the run's character by :mod:`prt_torch.rig.retarget`, torch-free)."""
+"""``prt play RUN --clip NAME | --motion FILE.bvh | --scene FILE [--env FILE] [--brdf NAME] [--out video.mp4]``:
+onnxruntime playback (a motion file is retargeted onto the run's character by :mod:`prt_torch.rig.retarget`,
+torch-free)."""
 
 from __future__ import annotations
 
