@@ -260,14 +260,12 @@ def sky_spec(env: str | Path | None = None) -> LightSpec:
     """The :class:`LightSpec` of ``--light sky``: the player's default procedural sky and its sun (a disk of the
     player's half-angle and power, :data:`~prt_torch.player.lighting.DEFAULT_SUN_COLOR`), or the ``env`` file alone
     (for methods that need the lighting as a map, e.g. ``sg_vct``)."""
-    import inspect as _inspect
-
     from prt_torch.light.sources import sky_sh
     from prt_torch.player.lighting import DEFAULT_SUN_COLOR, DEFAULT_SUN_DIRECTION
 
     if env is not None and str(env) not in ("", "sky"):
         return LightSpec("sky", str(env))
-    half = float(_inspect.signature(sky_sh).parameters["sun_half_angle"].default)
+    half = float(inspect.signature(sky_sh).parameters["sun_half_angle"].default)
     d = np.asarray(DEFAULT_SUN_DIRECTION, dtype=np.float64)
     return LightSpec("sky", None, d / np.linalg.norm(d), half, np.asarray(DEFAULT_SUN_COLOR, dtype=np.float64))
 
@@ -308,25 +306,10 @@ def spec_sh(spec: LightSpec, order: int) -> np.ndarray:
 
 
 def spec_reference(spec: LightSpec) -> ReferenceLight:
-    """The lighting at full resolution: the base map's radiance function (the procedural sky evaluated at each
-    ray, or the file's nearest pixel), plus the sun as a disk light sampled with its own rays."""
-    from prt_torch.light.sources import cie_clear_sky, sky_sh
-    from prt_torch.player.lighting import DEFAULT_SUN_DIRECTION
-
-    if spec.env is not None:
-        base = envmap_reference(spec.env)
-    else:
-        defaults = {k: p.default for k, p in inspect.signature(sky_sh).parameters.items()}
-        sky = np.asarray(defaults["sky_color"], dtype=np.float64)
-        ground = np.asarray(defaults["ground_color"], dtype=np.float64)
-        s = np.asarray(DEFAULT_SUN_DIRECTION, dtype=np.float64)
-        s = s / np.linalg.norm(s)
-
-        def radiance(dirs: np.ndarray) -> np.ndarray:
-            d = np.asarray(dirs, dtype=np.float64)
-            return cie_clear_sky(d, s)[..., None] * sky + (d[..., 2] <= 0)[..., None] * ground
-
-        base = ReferenceLight(radiance, [], "")
+    """The lighting at full resolution: the base map's radiance function (:func:`sky_reference`'s procedural sky
+    evaluated at each ray, without its delta sun, or the file's nearest pixel), plus the sun as a disk light sampled
+    with its own rays."""
+    base = envmap_reference(spec.env) if spec.env is not None else sky_reference()
     disks = [] if spec.sun_dir is None else [(spec.sun_dir, spec.sun_half_angle, spec.sun_radiance)]
     return ReferenceLight(base.radiance, [], spec.source, disks)
 
