@@ -23,7 +23,8 @@ indicator of the vertex frame, ``hs`` / ``hx`` "hit by self / by occluder x":
 * ``"one"``: ``v_self = 1 - H hs``, truth ``= 1 - H (1 - (1 - hs)(1 - hx))``, which equals
   ``v_self * (1 - H (1 - X))``: the occluder enters masked to the upper hemisphere,
   ``O = 1 - H (1 - X)``, computed as ``e - P_H (e - X)`` with ``e = sqrt(4 pi) e_0`` (the constant 1) and
-  ``P_H`` the (precomputed, constant) product matrix of the hemisphere indicator about the local ``+z``.
+  ``P_H`` the constant product matrix of the hemisphere indicator about the local ``+z``
+  (:func:`prt_torch.sh.product.mask_below_horizon`, the rule the SHEXP graph applies too).
 
 Both identities are exact in exact arithmetic, so the composition agrees with the whole-scene Embree truth
 up to the learned model's error, the sphere approximation, SH truncation of the products (order ``n``) and
@@ -32,12 +33,10 @@ the infinite-plane approximation of a finite ground. numpy only.
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from prt_torch.errors import check
-from prt_torch.sh.product import product_matrix, sh_product
+from prt_torch.sh.product import mask_below_horizon, sh_product
 from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
 
 #: the world up axis (z up, docs/DESIGN.md): the ground plane's normal
@@ -52,12 +51,6 @@ def constant_one(order: int) -> np.ndarray:
     return out
 
 
-@functools.lru_cache(maxsize=16)
-def _hemisphere_tables(order: int) -> tuple[np.ndarray, np.ndarray]:
-    """(``g (n,)`` the half-space ZH bands, ``P_H (C, C)`` the product matrix of the local upper hemisphere)."""
-    g = hemisphere_zh(order)
-    h_local = zh_to_sh(g, UP.copy())
-    return g, product_matrix(h_local)
 
 
 def halfspace_visibility(frames: np.ndarray, order: int, up: np.ndarray = UP) -> np.ndarray:
@@ -66,7 +59,7 @@ def halfspace_visibility(frames: np.ndarray, order: int, up: np.ndarray = UP) ->
     The indicator of the directions above the plane (``w . up > 0``) is a ZH about ``up``; in a vertex frame
     ``F`` (rows t, b, n) its axis is ``F @ up``. ``frames``: ``(..., V, 3, 3)``.
     """
-    g, _ = _hemisphere_tables(order)
+    g = hemisphere_zh(order)
     f = np.asarray(frames, dtype=np.float64)
     axis = f @ np.asarray(up, dtype=np.float64)
     axis /= np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-12)
@@ -86,8 +79,6 @@ class Composer:
                                               f"got {below_horizon!r}")
         self.order = int(order)
         self.below_horizon = below_horizon
-        _, self._p_h = _hemisphere_tables(self.order)
-        self._one = constant_one(self.order)
 
     def occluder(self, x: np.ndarray) -> np.ndarray:
         """The factor an external occluder's visibility ``x (..., C)`` enters the product with: ``x`` itself
@@ -95,8 +86,7 @@ class Composer:
         x = np.asarray(x, dtype=np.float32)
         if self.below_horizon == "zero":
             return x
-        d = (self._one - x.astype(np.float64)) @ self._p_h  # P_H symmetric
-        return (self._one - d).astype(np.float32)
+        return mask_below_horizon(x, self.order, "one").astype(np.float32)
 
     def compose(self, self_vis: np.ndarray, occluders: list[np.ndarray]) -> np.ndarray:
         """``self_vis (..., V, C)`` times (SH product, left to right) every occluder visibility

@@ -208,3 +208,31 @@ def sh_product(a: Array, b: Array, check: bool = True) -> Array:
             raise PrtError("sh_product needs a and b both numpy or both torch")
     m = product_matrix(a, check=False)
     return (m @ b[..., :, None])[..., 0]
+
+
+@functools.cache
+def hemisphere_product(order: int) -> np.ndarray:
+    """``(C, C)`` float64 product matrix ``P_H`` of the upper-hemisphere indicator about local ``+z`` (symmetric,
+    read-only): ``P_H v`` is the SH of ``H * v``."""
+    from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
+
+    out = product_matrix(zh_to_sh(hemisphere_zh(order), np.array([0.0, 0.0, 1.0])))
+    out.flags.writeable = False
+    return out
+
+
+def mask_below_horizon(v: np.ndarray, order: int, below_horizon: str | None) -> np.ndarray:
+    """``(..., C)`` float64: whole-sphere local-frame visibility ``v`` in a below-horizon convention (seed 003
+    eq. 1): ``"zero"``: ``H v``; ``"one"``: ``1 - H (1 - v)`` (only upper-hemisphere occlusion counts); ``None``:
+    ``v``. The numpy twin of :class:`prt_torch.shexp.ShexpVisibility`'s last step (the same ``P_H``)."""
+    if below_horizon not in (None, "zero", "one"):
+        raise PrtError(f"below_horizon must be None, 'zero' or 'one', got {below_horizon!r}")
+    v = np.asarray(v, dtype=np.float64)
+    if below_horizon is None:
+        return v
+    p_h = hemisphere_product(order)
+    if below_horizon == "zero":
+        return v @ p_h
+    one = np.zeros(order * order)
+    one[0] = np.sqrt(4.0 * np.pi)
+    return one - (one - v) @ p_h

@@ -39,8 +39,7 @@ import numpy as np
 import torch
 
 from prt_torch.errors import PrtError
-from prt_torch.sh.product import product_matrix
-from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
+from prt_torch.sh.product import hemisphere_product
 from prt_torch.shexp.exponential import SHExponential, check_method
 from prt_torch.shexp.tables import cos_log_table
 from prt_torch.shexp.zonal_sum import zonal_sum
@@ -50,11 +49,9 @@ CHUNK_ELEMENTS = 1 << 20
 """Largest ``batch * V * S * C`` evaluated at once by :func:`shexp_visibility` (chunked over ``V`` above)."""
 
 
-@functools.cache
 def _hemisphere_product(order: int) -> np.ndarray:
-    """``(C, C)`` float32 product matrix of the upper-hemisphere indicator about local +z."""
-    h = zh_to_sh(hemisphere_zh(order), np.array([0.0, 0.0, 1.0]))
-    return product_matrix(h).astype(np.float32)
+    """``(C, C)`` float32 :func:`prt_torch.sh.product.hemisphere_product` (the module's buffer)."""
+    return hemisphere_product(order).astype(np.float32)
 
 
 def check_below_horizon(value: Any) -> str | None:

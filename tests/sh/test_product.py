@@ -191,3 +191,27 @@ def test_bad_inputs() -> None:
         sh_product(np.ones(9), torch.ones(9))
     with pytest.raises(PrtError, match="floating"):
         product_matrix(np.ones(9, dtype=np.int64))
+
+
+@pytest.mark.parametrize("below", ["zero", "one"])
+def test_mask_below_horizon_is_the_projection_of_the_masked_function(below: str) -> None:
+    """``mask_below_horizon`` vs quadrature: a band-limited ``v`` times the order-n projection of the upper-hemisphere
+    indicator ``H_n`` (``H_n v``, or ``1 - H_n (1 - v)``), evaluated on an exact rule and projected back."""
+    from prt_torch.sh.basis import sh_basis
+    from prt_torch.sh.product import mask_below_horizon
+    from prt_torch.sh.quadrature import gauss_product_rule
+    from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
+
+    order = 4
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(5, order * order))
+    dirs, w = gauss_product_rule(3 * (order - 1))  # exact for the triple products of order-n functions
+    y = sh_basis(dirs, order)  # (N, C)
+    f = v @ y.T  # (5, N)
+    h_n = zh_to_sh(hemisphere_zh(order), np.array([0.0, 0.0, 1.0])) @ y.T  # H projected to order n (test_zonal)
+    masked = h_n * f if below == "zero" else 1.0 - h_n * (1.0 - f)
+    want = (masked * w) @ y
+    np.testing.assert_allclose(mask_below_horizon(v, order, below), want, atol=1e-6 * np.abs(want).max())
+    np.testing.assert_array_equal(mask_below_horizon(v, order, None), v)
+    with pytest.raises(PrtError, match="below_horizon"):
+        mask_below_horizon(v, order, "half")

@@ -63,8 +63,6 @@ class Shexp(MethodBase):
 
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
         from prt_torch.blockers import SphereSet, fit_spheres
-        from prt_torch.sh.product import product_matrix
-        from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
 
         rd = run.run
         shipped = has_sphere_set(run)
@@ -101,15 +99,11 @@ class Shexp(MethodBase):
         self.radii = self.spheres.radius[None].astype(np.float32)
         from prt_torch.bake.store import below_horizon_of
 
-        below = below_horizon_of(run.dataset.attrs)
-        h = zh_to_sh(hemisphere_zh(self.order), np.array([0.0, 0.0, 1.0]))
-        self.hemi = product_matrix(h).astype(np.float32)
-        self.one = np.zeros(self.order * self.order, np.float32)
-        self.one[0] = np.sqrt(4 * np.pi)
-        self.below = below
+        self.below = below_horizon_of(run.dataset.attrs)
 
     def visibility(self, batch: FrameBatch) -> np.ndarray:
         from prt_torch.blockers import pose_spheres
+        from prt_torch.sh.product import mask_below_horizon
 
         centers = pose_spheres(self.spheres, self.skins[batch.index])
         radii = np.broadcast_to(self.radii, centers.shape[:2]).astype(np.float32)
@@ -121,9 +115,7 @@ class Shexp(MethodBase):
             from prt_torch.shexp import shexp_visibility
 
             v = shexp_visibility(pts, centers, radii, self.order, frames=frm).numpy()
-        if self.below == "zero":
-            return v @ self.hemi
-        return self.one + (v - self.one) @ self.hemi
+        return mask_below_horizon(v, self.order, self.below).astype(np.float32)
 
     def bytes(self) -> int:
         return int(self._bytes)
