@@ -124,12 +124,7 @@ def run(args: argparse.Namespace) -> int:
     order = args.order
     lights = sp.shipping_lights(order, names=[sp.PLAYER_LIGHT])
     rpos = sp.shipping_rpos(order)
-    unocc = np.zeros(order * order, np.float32)
-    unocc[0] = np.sqrt(4 * np.pi)
-    if args.below_horizon == "zero":
-        from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
-
-        unocc = zh_to_sh(hemisphere_zh(order), np.array([0.0, 0.0, 1.0])).astype(np.float32)
+    unocc = sp.unshadowed_visibility(order, args.below_horizon)
     times = [0.25 + 0.6 * i for i in range(args.frames)]
     results: dict[str, Any] = {
         "settings": {"sizes": sizes, "kinds": kinds, "frames": args.frames, "times_s": times, "wedges": args.wedges,
