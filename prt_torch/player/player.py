@@ -204,13 +204,17 @@ class Player:
         """numpy FK, LBS, local frames, pose features and view directions for ``(B, J, 4, 4)`` locals."""
         return self.poser(local, self.eye)
 
+    def _light_feeds(self, rpo: RPOTensors | None = None) -> dict[str, np.ndarray]:
+        """The lighting and RPO inputs every shading graph takes (``rpo``: default the player's current one)."""
+        rpo = self.rpo if rpo is None else rpo
+        return {"lobe_dirs": self._lobe_dirs, "lobe_coeffs": self.lighting.coeffs, "rpo_M": rpo.M, "rpo_w": rpo.w,
+                "rpo_tint": rpo.tint}
+
     def _fused_feeds(self, state: PoseBatch) -> dict[str, np.ndarray]:
         """The fused graph's inputs: frames and view directions in its vertex order (free when posed in it)."""
         o = self.vertex_order
         return {"pose": state.features, "frames": state.in_order("frames", o),
-                "view_dirs": state.in_order("view_dirs", o), "lobe_dirs": self._lobe_dirs,
-                "lobe_coeffs": self.lighting.coeffs, "rpo_M": self.rpo.M, "rpo_w": self.rpo.w,
-                "rpo_tint": self.rpo.tint}
+                "view_dirs": state.in_order("view_dirs", o), **self._light_feeds()}
 
     def _to_original(self, radiance: np.ndarray) -> np.ndarray:
         """``(B, V, 3)`` radiance from the fused graph's vertex order back to the original one."""
@@ -220,10 +224,8 @@ class Player:
         out[:, self.vertex_order] = radiance
         return out
 
-    def _shading_feeds(self, state: PoseBatch) -> dict[str, np.ndarray]:
-        return {"frames": state.frames, "view_dirs": state.view_dirs, "lobe_dirs": self._lobe_dirs,
-                "lobe_coeffs": self.lighting.coeffs, "rpo_M": self.rpo.M, "rpo_w": self.rpo.w,
-                "rpo_tint": self.rpo.tint}
+    def _shading_feeds(self, state: PoseBatch, rpo: RPOTensors | None = None) -> dict[str, np.ndarray]:
+        return {"frames": state.frames, "view_dirs": state.view_dirs, **self._light_feeds(rpo)}
 
     def visibility(self, features: np.ndarray, checked: bool = True) -> np.ndarray:
         """``(B, A)`` pose features -> ``(B, V, C)`` local visibility (ORT)."""
@@ -233,8 +235,10 @@ class Player:
         return g.run_unchecked({"pose": features})[0]
 
     def shade(self, state: PoseBatch, visibility: np.ndarray | None = None, checked: bool = True,
-              timer: FrameTimer | None = None) -> np.ndarray:
-        """Radiance ``(B, V, 3)``: from the model (``visibility=None``) or a given ``(B, V, C)`` visibility."""
+              timer: FrameTimer | None = None, rpo: RPOTensors | None = None) -> np.ndarray:
+        """Radiance ``(B, V, 3)``: from the model (``visibility=None``) or a given ``(B, V, C)`` visibility.
+        ``rpo``: shade with this RPO instead of the player's current BRDF (needs ``visibility``)."""
+        check(rpo is None or visibility is not None, "Player.shade: rpo= needs the visibility")
         if visibility is None and self.graph == "fused":  # one call for all B characters
             g = self.bundle.graphs["fused"]
             t0 = time.perf_counter()
@@ -252,7 +256,7 @@ class Player:
             if timer is not None:
                 timer.add("fused", time.perf_counter() - t0)
             return out
-        feeds = self._shading_feeds(state)
+        feeds = self._shading_feeds(state, rpo)
         if visibility is None and state.features.shape[0] > 1:
             return self._shade_batch(state, feeds, checked, timer)
         t0 = time.perf_counter()

@@ -239,12 +239,7 @@ class ScenePlayer:
         state = PoseBatch(packed(pos), packed(g.normals()), packed(frames9), packed(view),
                           np.zeros((b, p.bundle.n_features), np.float32))
         vis = packed(visibility).transpose(0, 2, 1)  # (B, V_graph, C)
-        rpo = p.rpo
-        p.rpo = self._ground_rpo
-        try:
-            out = p.shade(state, visibility=np.ascontiguousarray(vis), checked=False)
-        finally:
-            p.rpo = rpo
+        out = p.shade(state, visibility=np.ascontiguousarray(vis), checked=False, rpo=self._ground_rpo)
         return out.reshape(b * v_graph, 3)[:n] * g.albedo[None]
 
     def colors(self, f: SceneFrame) -> tuple[list[np.ndarray], np.ndarray | None]:
