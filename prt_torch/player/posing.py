@@ -33,11 +33,12 @@ class PoseBatch:
     _FIELDS = ("positions", "normals", "frames", "view_dirs")
 
     def __init__(self, positions: np.ndarray, normals: np.ndarray, frames: np.ndarray, view_dirs: np.ndarray,
-                 features: np.ndarray, order: np.ndarray | None = None) -> None:
+                 features: np.ndarray, order: np.ndarray | None = None, skin: np.ndarray | None = None) -> None:
         self._raw = {"positions": positions, "normals": normals, "frames": frames, "view_dirs": view_dirs}
         self._orig: dict[str, np.ndarray] = {}
         self.features = features  # (B, A)
         self.order = order
+        self.skin = skin  # (B, J, 4, 4) float64 skinning matrices (world @ inverse bind), when posed by a Poser
 
     def __repr__(self) -> str:
         b, _, v = self._raw["positions"].shape
@@ -179,7 +180,7 @@ class Poser:
         _normalize(view, s1, s3)
         if features is None:
             features = np.ascontiguousarray(pose_features(local, ch.bind_local, ch.parents), dtype=np.float32)
-        return PoseBatch(pos, nrm, frames, view, features, order=self.order)
+        return PoseBatch(pos, nrm, frames, view, features, order=self.order, skin=skin)
 
     def _scratch(self, b: int) -> tuple[np.ndarray, np.ndarray]:
         """``(B, V)`` and ``(B, 3, V)`` float32 scratch buffers, allocated once per batch size."""

@@ -182,11 +182,8 @@ class ScenePlayer:
             selfvis.append(p.visibility(st.features, checked=False))
             if self.shexp is not None:
                 from prt_torch.blockers import pose_spheres
-                from prt_torch.rig.skeleton import forward_kinematics
 
-                ch = a.character
-                skin = forward_kinematics(ch.parents, local) @ ch.inverse_bind[None]
-                centers.append(pose_spheres(a.spheres, skin))  # (1, S_k, 3)
+                centers.append(pose_spheres(a.spheres, st.skin))  # (1, S_k, 3), the Poser's skinning matrices
                 radii.append(np.asarray(a.spheres.radius, dtype=np.float32))
         if len(self.actors) > 1:
             check_separated([c[0] for c in centers], radii, [a.name for a in self.actors], frame)
