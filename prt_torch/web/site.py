@@ -127,7 +127,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
             as ``prt play --motion`` does), offered as clips named ``motion:<stem>``.
         env_presets: offer the shared data's env maps (:data:`prt_torch.eval.shipping.ENVMAPS`) besides the sky.
         material_rpo: add the character material's own RPO (Cook-Torrance with its roughness, cached) to the
-            catalogue as ``material`` (needs the ``export`` extra: torch; skipped without it).
+            catalogue as ``material`` (building it needs scikit-learn, the ``export`` extra; skipped without it).
 
     Returns:
         the manifest (also written to ``out/assets/manifest.json``).
