@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from prt_torch.errors import check
+
+if TYPE_CHECKING:
+    import scipy.sparse
 
 
 def weld(positions: np.ndarray, faces: np.ndarray, *keys: np.ndarray, decimals: int = 6
@@ -48,3 +53,54 @@ def vertex_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     length = np.linalg.norm(n, axis=1, keepdims=True)
     n = np.where(length > 1e-20, n / np.maximum(length, 1e-30), np.array([0.0, 0.0, 1.0]))
     return n.astype(np.float32)
+
+
+def normal_scatter(faces: np.ndarray, n_vertices: int) -> scipy.sparse.csr_matrix:
+    """``(V, T)`` float32 CSR incidence matrix (1 where vertex ``v`` is a corner of face ``t``) for
+    :func:`vertex_normals_soa`: summing face normals onto their corners as one sparse product."""
+    import scipy.sparse as sp
+
+    faces = np.asarray(faces, dtype=np.int64)
+    check(faces.ndim == 2 and faces.shape[1] == 3, f"faces must be (T, 3), got {faces.shape}")
+    t = np.repeat(np.arange(faces.shape[0]), 3)
+    return sp.csr_matrix((np.ones(t.size, np.float32), (faces.reshape(-1), t)), shape=(n_vertices, faces.shape[0]))
+
+
+def vertex_normals_soa(positions: np.ndarray, faces: np.ndarray, scatter: scipy.sparse.csr_matrix | None = None
+                       ) -> np.ndarray:
+    """The rule of :func:`vertex_normals` in float32, vertex-last (the player's fast path; tested against it).
+
+    Args:
+        positions: ``(B, 3, V)`` float32 positions.
+        faces: ``(T, 3)`` counter-clockwise triangles.
+        scatter: :func:`normal_scatter` ``(faces, V)`` (built here when ``None``; pass it for speed).
+
+    Returns:
+        ``(B, 3, V)`` float32 unit normals; isolated vertices get ``(0, 0, 1)``.
+    """
+    p = np.asarray(positions, dtype=np.float32)
+    check(p.ndim == 3 and p.shape[1] == 3, f"positions must be (B, 3, V), got {p.shape}")
+    b, _, v = p.shape
+    faces = np.asarray(faces)
+    if scatter is None:
+        scatter = normal_scatter(faces, v)
+    g = np.take(p, faces.T.reshape(-1), axis=2).reshape(b, 3, 3, -1)  # (B, xyz, corner, T)
+    e1 = g[:, :, 1] - g[:, :, 0]
+    e2 = g[:, :, 2] - g[:, :, 0]
+    fn = np.empty_like(e1)  # (B, 3, T): e1 x e2 = 2 * area * normal
+    np.multiply(e1[:, 1], e2[:, 2], out=fn[:, 0])
+    fn[:, 0] -= e1[:, 2] * e2[:, 1]
+    np.multiply(e1[:, 2], e2[:, 0], out=fn[:, 1])
+    fn[:, 1] -= e1[:, 0] * e2[:, 2]
+    np.multiply(e1[:, 0], e2[:, 1], out=fn[:, 2])
+    fn[:, 2] -= e1[:, 1] * e2[:, 0]
+    n = np.empty((b, 3, v), np.float32)
+    for i in range(b):  # one sparse mat-vec per row: much faster than one sparse mat-multivector product
+        for c in range(3):
+            n[i, c] = scatter @ fn[i, c]
+    length = np.sqrt(np.einsum("bcv,bcv->bv", n, n))
+    iso = length <= 1e-20
+    n /= np.where(iso, np.float32(1), length)[:, None]
+    if iso.any():
+        n[:, 2][iso] = 1.0
+    return n
