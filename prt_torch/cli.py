@@ -23,6 +23,7 @@ from typing import NoReturn
 COMMANDS: dict[str, str] = {
     "demo": "prt_torch.commands.demo",
     "light": "prt_torch.commands.light",
+    "simulate": "prt_torch.commands.simulate",
     "bake": "prt_torch.commands.bake",
     "train": "prt_torch.commands.train",
     "eval": "prt_torch.commands.eval",

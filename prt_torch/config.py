@@ -7,6 +7,8 @@ A config has sections owned by the stage that reads them::
     bake: {...}                   # prt_torch.bake.config.BakeConfig
     train: {...}                  # prt_torch.fit.config.TrainConfig
     scene: {...}                  # prt_torch.scene.config.SceneConfig (optional: ground, characters)
+    cloth: {...}                  # prt_torch.cloth.config.ClothConfig (optional: a simulated deformable run;
+                                  # then ``character`` may be omitted: the flag has no body, the cape's is it)
 
 Unknown keys anywhere are errors (``extra="forbid"``); :func:`load_config` turns any validation
 problem into a one-line :class:`prt_torch.PrtError` naming the key.
@@ -24,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from prt_torch import limits as L
 from prt_torch.bake.config import BakeConfig
+from prt_torch.cloth.config import ClothConfig
 from prt_torch.errors import PrtError
 from prt_torch.fit.config import TrainConfig
 from prt_torch.rig.config import CharacterConfig
@@ -47,6 +50,8 @@ class RunConfig(BaseModel):
     bake: BakeConfig = Field(default_factory=BakeConfig)
     train: TrainConfig = Field(default_factory=TrainConfig)
     scene: SceneConfig | None = None  # ground plane and characters (prt_torch.scene.config); None: no scene
+    #: a deformable run (prt_torch.cloth.config, issue 11): positions from the simulated vertex cache, not skinning
+    cloth: ClothConfig | None = None
 
     #: directory of the config file, used to resolve relative paths inside it
     base_dir: Path | None = Field(default=None, exclude=True)
@@ -73,11 +78,24 @@ class RunConfig(BaseModel):
             check_run_dir(v)
         return v
 
+    @model_validator(mode="before")
+    @classmethod
+    def _cloth_character(cls, data: Any) -> Any:
+        """A cloth run needs no ``character:`` section (the flag has no body): it defaults to the built-in one."""
+        if isinstance(data, dict) and data.get("cloth") is not None and "character" not in data:
+            return {**data, "character": {}}
+        return data
+
     @model_validator(mode="after")
     def _bake_memory(self) -> RunConfig:
-        if self.character.source == "builtin":
+        # the subject's vertices: the built-in body (skinned runs and the cape) + the cloth (cloth runs); a glTF
+        # body's count is known only when it is loaded (checked again by the bake with the real count)
+        scene = self.cloth.scene if self.cloth is not None else None
+        body = self.character.source == "builtin" and scene != "flag"
+        cloth = self.cloth.rows * self.cloth.cols if self.cloth is not None else 0
+        if body or cloth:
             b = self.bake
-            vertices = int(L.BUILTIN_VERTICES_PER_DENSITY * self.character.density) + 1
+            vertices = (int(L.BUILTIN_VERTICES_PER_DENSITY * self.character.density) if body else 0) + cloth + 1
             try:
                 L.check_bake_task_memory(b.frames_per_task, vertices, b.order,
                                          b.transfer_order if b.transfer else None)

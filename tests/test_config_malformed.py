@@ -76,8 +76,11 @@ def _check_within_bounds(cfg: RunConfig) -> None:
     assert all(0 <= a <= L.MAX_ALPHA for a in t.alphas + t.mlp_alphas)
     assert set(cfg.name) - {"."} and len(cfg.name) <= L.MAX_NAME_LENGTH
     assert cfg.run_dir is None or not cfg.run_dir.exists() or cfg.run_dir.is_dir()
-    if ch.source == "builtin":
-        v = int(L.BUILTIN_VERTICES_PER_DENSITY * ch.density) + 1
+    # the subject baked: the built-in body (skinned runs and the cape; the flag has none) + the cloth's rows x cols
+    body = ch.source == "builtin" and (cfg.cloth is None or cfg.cloth.scene != "flag")
+    cloth = cfg.cloth.rows * cfg.cloth.cols if cfg.cloth is not None else 0
+    if body or cloth:
+        v = (int(L.BUILTIN_VERTICES_PER_DENSITY * ch.density) if body else 0) + cloth + 1
         assert L.bake_task_bytes(b.frames_per_task, v, b.order, b.transfer_order if b.transfer else None) \
             <= L.MAX_TASK_BYTES
 

@@ -32,6 +32,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from prt_torch.bake.deformable import clusters as deformable_clusters
+from prt_torch.bake.deformable import ensure_simulated, frame_operator, is_deformable, posed_frames
 from prt_torch.bake.embree import ray_offset, require_embreex
 from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
@@ -50,6 +52,7 @@ from prt_torch.bake.store import (
     write_arrays,
 )
 from prt_torch.bake.trace import RaySet, trace_frame
+from prt_torch.bake.transfer_matrix import frame_results
 from prt_torch.errors import PrtError
 from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.rundir import RunDir
@@ -62,12 +65,14 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class BlockTask:
     """One task: frames ``[f0, f1)`` of the store at ``dataset`` (absolute path) with their
-    ``skin (f1 - f0, J, 4, 4)`` float64 matrices."""
+    ``skin (f1 - f0, J, 4, 4)`` float64 matrices, or a deformable subject's vertex-cache
+    ``positions (f1 - f0, V, 3)`` float32 (then traced as they are, frames by :mod:`prt_torch.bake.deformable`)."""
 
     dataset: str
     f0: int
     f1: int
     skin: np.ndarray
+    positions: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -115,6 +120,7 @@ class _Context:
     bones: np.ndarray
     rays: RaySet
     params: dict[str, Any]
+    frame_op: Any = None  # deformable stores: prt_torch.deform.frames.FrameOperator (bake.deformable.frame_operator)
 
 
 _CONTEXTS: dict[tuple[str, float], _Context] = {}
@@ -134,6 +140,8 @@ def _context(dataset: str) -> _Context:
                        rays=RaySet.make(int(params["n_rays"]), int(params["order"]), ch.num_vertices,
                                         int(params["seed"]), below_horizon=below_horizon_of(params)),
                        params=params)
+        if is_deformable(dict(g.attrs)):
+            ctx.frame_op = frame_operator(ch, labels)
         _CONTEXTS.clear()
         _CONTEXTS[key] = ctx
     return ctx
@@ -150,22 +158,33 @@ def bake_block(task: BlockTask) -> BlockStats:
         ctx = _context(task.dataset)
         p = ctx.params
         ch = ctx.character
-        pos, nrm = skin(task.skin, ctx.dense_w, ch.rest_vertices, ch.rest_normals)
-        assert nrm is not None
-        frames = vertex_frames(nrm, task.skin, ctx.labels, ctx.axes, ctx.bones)
+        if task.positions is not None:  # a deformable subject: the vertex cache's positions, FrameOperator frames
+            if ctx.frame_op is None:
+                raise PrtError(f"{task.dataset}: a deformable task for a dataset baked from a skinned character")
+            pos = np.asarray(task.positions, dtype=np.float32)
+            nrm, frames = posed_frames(ctx.frame_op, pos)
+        else:
+            pos, nrm = skin(task.skin, ctx.dense_w, ch.rest_vertices, ch.rest_normals)
+            assert nrm is not None
+            frames = vertex_frames(nrm, task.skin, ctx.labels, ctx.axes, ctx.bones)
         n = task.f1 - task.f0
         V = ch.num_vertices
         vis = np.empty((n, V, int(p["order"]) ** 2), dtype=np.float32)
         tr = np.empty((n, V, int(p["transfer_order"]) ** 2), dtype=np.float32) if p["transfer"] else None
+        extra: dict[str, np.ndarray] = {}  # transfer_matrix / subsurface, from the same rays and hits
+        keep_hits = bool(p.get("transfer_matrix") or p.get("subsurface"))
         rays = 0
         for i in range(n):
             res = trace_frame(pos[i], frames[i], ch.faces, ctx.rays, float(p["ray_offset_world"]),
                              transfer_order=int(p["transfer_order"]) if p["transfer"] else None,
                              bounces=int(p["bounces"]) if p["transfer"] else 0, albedo=float(p["albedo"]),
-                             max_rays=int(p["vertex_chunk_rays"]))
+                             max_rays=int(p["vertex_chunk_rays"]), keep_hits=keep_hits)
             vis[i] = res.visibility
             if tr is not None:
                 tr[i] = res.transfer
+            if keep_hits:
+                for name, a in frame_results(p, pos[i], frames[i], ch.faces, ctx.rays, res).items():
+                    extra.setdefault(name, np.empty((n, *a.shape), dtype=np.float32))[i] = a
             rays += res.n_rays
     g = ctx.arrays  # every chunk written, even one equal to the fill value: a missing chunk is damage
     sl = slice(task.f0, task.f1)
@@ -175,6 +194,8 @@ def bake_block(task: BlockTask) -> BlockStats:
     g["visibility"][sl] = vis
     if tr is not None:
         g["transfer"][sl] = tr
+    for name, a in extra.items():
+        g[name][sl] = a
     g["done"][sl] = np.ones(n, dtype=bool)  # last: the block counts as baked only once all its data is in
     return BlockStats(frames=n, rays=rays, seconds=time.perf_counter() - t0)
 
@@ -210,7 +231,9 @@ def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any
     b = cfg.bake
     bake_params = {k: getattr(b, k) for k in ("order", "n_rays", "below_horizon", "transfer", "transfer_order",
                                               "bounces", "albedo", "seed", "ray_offset", "cluster_bandwidth",
-                                              "max_clusters", "min_cluster_size", "vertex_chunk_rays")}
+                                              "max_clusters", "min_cluster_size", "vertex_chunk_rays",
+                                              "transfer_matrix", "matrix_order", "matrix_bounces")}
+    bake_params["subsurface"] = b.subsurface.model_dump(mode="json") if b.subsurface is not None else None
     bake_params["ray_offset_world"] = offset_world
     return {
         "format_version": FORMAT_VERSION,
@@ -226,6 +249,8 @@ def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any
         "conventions": conventions(b.below_horizon),
         "versions": library_versions(),
         "config": cfg.model_dump(mode="json"),
+        # positions from the vertex cache, FrameOperator frames, k-means clusters (prt_torch.bake.deformable)
+        "deformable": plan.deformable,
     }
 
 
@@ -233,6 +258,17 @@ def _static_arrays(cfg: RunConfig, plan: BakePlan) -> dict[str, np.ndarray]:
     """The arrays written whole when a store is created (deterministic: a repair rewrites them)."""
     b = cfg.bake
     ch = plan.character
+    if plan.deformable:  # no bones: k-means of the rest vertices into max_clusters clusters; no cluster bone
+        labels = deformable_clusters(ch, b.max_clusters, b.seed)
+        return {
+            "pose": plan.pose.astype(np.float32),
+            "clip_id": plan.clip_id.astype(np.int32),
+            "frame_index": plan.frame_index.astype(np.int32),
+            "faces": ch.faces.astype(np.int32),
+            "cluster": labels,
+            "cluster_axis": cluster_axes(ch.rest_vertices, labels),
+            "cluster_bone": np.zeros(int(labels.max()) + 1, np.int32),
+        }
     labels = cluster_vertices(ch.dense_weights, bandwidth=b.cluster_bandwidth, max_clusters=b.max_clusters,
                               min_size=b.min_cluster_size, seed=b.seed)
     return {
@@ -255,6 +291,10 @@ def _create(path: Path, cfg: RunConfig, plan: BakePlan, attrs: dict[str, Any]) -
     }
     if b.transfer:
         per_frame["transfer"] = ((V, b.transfer_order**2), "float32")
+    if b.transfer_matrix:
+        per_frame["transfer_matrix"] = ((V, b.matrix_order**2, b.matrix_order**2), "float32")
+    if b.subsurface is not None:
+        per_frame["subsurface"] = ((V, b.transfer_order**2), "float32")
     create_store(path, _static_arrays(cfg, plan), per_frame, plan.n_frames, b.frames_per_task, attrs)
 
 
@@ -329,7 +369,8 @@ def block_tasks(path: Path, plan: BakePlan) -> list[BlockTask]:
     for f0 in range(0, plan.n_frames, fpt):
         f1 = min(plan.n_frames, f0 + fpt)
         if not done[f0:f1].all():
-            tasks.append(BlockTask(dataset=str(path), f0=f0, f1=f1, skin=plan.skin[f0:f1]))
+            tasks.append(BlockTask(dataset=str(path), f0=f0, f1=f1, skin=plan.skin[f0:f1],
+                                   positions=None if plan.positions is None else plan.positions[f0:f1]))
     return tasks
 
 
@@ -387,11 +428,15 @@ def run_bake(
     require_embreex()
     if workers is not None and workers < 1:
         raise PrtError(f"workers must be >= 1, got {workers}")
+    if getattr(cfg, "cloth", None) is not None:  # a cloth run: simulate (resumably) what the vertex cache lacks
+        ensure_simulated(cfg, progress=progress)
     plan = make_plan(cfg)  # before the lock: a bad config creates nothing
     b = cfg.bake
     # the vertex count of a glTF character is known only now: one task's arrays must fit in memory
     limits.check_bake_task_memory(min(b.frames_per_task, plan.n_frames), plan.character.num_vertices, b.order,
-                                  b.transfer_order if b.transfer else None)
+                                  b.transfer_order if b.transfer else None,
+                                  matrix_order=b.matrix_order if b.transfer_matrix else None, n_rays=b.n_rays,
+                                  subsurface=b.subsurface is not None)
     with RunDir(cfg.out_dir.resolve()).lock("bake"):
         return _run_bake(cfg, plan, workers, scheduler, progress, on_block)
 

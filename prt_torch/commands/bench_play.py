@@ -170,6 +170,12 @@ def _parse_sizes(text: str, name: str, hi: int) -> list[int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from prt_torch.player.deformable import is_deformable_export
+
+    if is_deformable_export(args.run):  # a cloth run: positions -> frames + features + visibility -> shading
+        from prt_torch.commands.bench_play_deformable import run as run_deformable
+
+        return run_deformable(args)
     from rich.console import Console
 
     from prt_torch import limits

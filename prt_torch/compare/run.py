@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch import metrics as M
+from prt_torch.bake.deformable import is_deformable
 from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
 from prt_torch.errors import PrtError, check
@@ -82,6 +83,8 @@ def clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> Fr
     from prt_torch.rig.vertex_frames import vertex_frames
 
     ch, ds = ctx.character, ctx.dataset
+    if is_deformable(ds.attrs):
+        return deformable_clip_frames(ctx, clip, max_frames)
     if clip not in ch.clips:
         raise PrtError(f"unknown clip {clip!r} for character {ch.name!r}; available: {sorted(ch.clips)}")
     fps = (ds.attrs.get("config") or {}).get("character", {}).get("fps")
@@ -93,6 +96,27 @@ def clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> Fr
     return FrameSet(features=np.asarray(poses.features[idx], dtype=np.float32), positions=pos.astype(np.float32),
                     frames=np.asarray(frames, dtype=np.float32), clips=[clip] * len(idx), frame_index=idx,
                     rows=np.full(len(idx), -1, np.int64))
+
+
+def deformable_clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> FrameSet:
+    """A cached sequence of a deformable (cloth) run, positions, features and frames by the bake's rule
+    (:func:`prt_torch.bake.deformable.sequence_frames`, :func:`~prt_torch.bake.deformable.posed_frames` with the
+    dataset's clusters); ``max_frames``: evenly spaced subset."""
+    from prt_torch.bake.deformable import frame_operator, load_subject, open_cache, posed_frames, sequence_frames
+    from prt_torch.config import config_from_dict
+
+    ds = ctx.dataset
+    cfg = config_from_dict(dict(ds.attrs.get("config") or {}), source=f"{ds.path} attrs['config']")
+    cfg.run_dir = ctx.run.path
+    subject = load_subject(cfg)
+    seq = sequence_frames(cfg, subject, open_cache(cfg), clip)
+    check(seq.positions.shape[1] == ctx.character.num_vertices,
+          f"sequence {clip!r}: {seq.positions.shape[1]} vertices, the run's character {ctx.character.num_vertices}")
+    idx = evenly_spaced(len(seq.positions), max_frames if max_frames is not None else len(seq.positions))
+    pos = seq.positions[idx]
+    _, frames = posed_frames(frame_operator(ctx.character, ds.cluster), pos)
+    return FrameSet(features=seq.features[idx], positions=pos, frames=frames, clips=[clip] * len(idx),
+                    frame_index=np.asarray(idx, np.int64), rows=np.full(len(idx), -1, np.int64))
 
 
 def _time_methods(methods: dict[str, MethodBase], fs: FrameSet, req: RadianceRequest,

@@ -130,19 +130,19 @@ def default_eye(positions: np.ndarray) -> np.ndarray:
 def export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None,
                brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
                exporter: str = "torchscript", force: bool = False,
-               console: Any = None, precision: str = DEFAULT_PRECISION) -> dict[str, Any]:
+               console: Any = None, precision: str = DEFAULT_PRECISION, deform: Any = None) -> dict[str, Any]:
     """Export a trained run to ONNX while holding the run directory's lock (:meth:`RunDir.lock`); see
     :func:`_export_run` for the arguments. Returns the export metadata."""
     run = RunDir.of(run_dir).require()
     with run.lock("export"):
         return _export_run(run, kind=kind, brdfs=brdfs, n_terms=n_terms, opset=opset, exporter=exporter,
-                           force=force, console=console, precision=precision)
+                           force=force, console=console, precision=precision, deform=deform)
 
 
 def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None,
                 brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
                 exporter: str = "torchscript", force: bool = False,
-                console: Any = None, precision: str = DEFAULT_PRECISION) -> dict[str, Any]:
+                console: Any = None, precision: str = DEFAULT_PRECISION, deform: Any = None) -> dict[str, Any]:
     """Export a trained run to ONNX; returns the ``export.json`` content.
 
     Args:
@@ -156,6 +156,9 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         force: re-export even when the export is up to date (same model file and settings).
         precision: weight precision of the output bases (``"fp32"``, ``"fp16"``, ``"int8"``); models without
             per-cluster bases export in float32.
+        deform: a deformable run's :class:`prt_torch.export.deformable.DeformSpec` (``None``: built from the run
+            when its config has ``cloth:``, :func:`prt_torch.export.deformable.deform_spec`): ships the deform data
+            and the positions-in graph too.
     """
     import torch
 
@@ -183,11 +186,17 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     )
 
     n_spheres = blocker_count(run)
+    from prt_torch.export.deformable import DEFORMABLE_VERSION, deform_spec, is_deformable
+
+    if deform is None and is_deformable(run):
+        deform = deform_spec(run)
+    deform_files = (run.deform_path, run.positions_graph_path, run.positions_fused_path) if deform is not None else ()
     key = stage_key({"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
                      "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT, "blockers": n_spheres,
-                     "shexp_graph": SHEXP_GRAPH_VERSION})
+                     "shexp_graph": SHEXP_GRAPH_VERSION,
+                     **({"deformable": [DEFORMABLE_VERSION, deform.n_body_features]} if deform is not None else {})})
     outputs = (run.export_json, run.frames_path, *(run.graph_path(g) for g in GRAPHS),
-               *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path)
+               *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path, *deform_files)
     if not force and run.is_current("export", key, outputs):
         try:
             return run.export_meta()
@@ -197,7 +206,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     character = run.character()
     check(character.num_vertices == model.n_vertices,
           f"model has {model.n_vertices} vertices but {run.character_path} has {character.num_vertices}")
-    check(character.feature_width == model.n_features,
+    check(deform is not None or character.feature_width == model.n_features,  # deformable: checked by the spec
           f"model takes {model.n_features} pose features but the character gives {character.feature_width}")
     order, V, A, C = model.order, model.n_vertices, model.n_features, model.n_coeffs
     held = heldout_inputs(run)
@@ -274,6 +283,17 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         if console is not None:
             console.print(f"  {path.name}: parity rel. error {p.rel_error:.2e} on {len(pose)} held-out poses")
     shexp = ship_shexp(run, character, order, n_spheres, opset, base_meta)
+    deformable = None
+    if deform is not None:  # a deformable run: the frame operator + the positions-in graph
+        from prt_torch.export.deformable import ship_deformable
+
+        deformable = ship_deformable(run, deform, vis_graph, held, base_meta, PARITY_RTOL_BY_PRECISION[precision],
+                                     opset=opset, exporter=exporter,
+                                     int8_pattern=BASIS_PATTERN if precision == "int8" else None,
+                                     fused_graph=fused_graph, fused_inputs=fused_in)
+        if console is not None:
+            console.print(f"  {run.positions_graph_path.name}: parity rel. error "
+                          f"{deformable['parity']['rel_error']:.2e} (positions -> dihedral angles -> visibility)")
     meta = {
         "format": FORMAT, "conventions": conventions, "below_horizon": below_horizon, "sh_order": order,
         "n_coeffs": C, "n_vertices": V, "n_features": A, "n_terms": n_terms, "model_kind": model.kind,
@@ -286,8 +306,10 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         "brdfs": sorted(rpo_files), "rpo_files": rpo_files, "parity": parity,
         "parity_rows": held["rows"].tolist(), "export_seconds": time.perf_counter() - t0,
         "model_file": run.relative(mpath), "shexp": shexp,
+        **({"deformable": deformable} if deformable is not None else {}),
         "file_sha256": run.unit_hashes([run.frames_path, *(run.rpo_path(b) for b in rpo_files),
-                                        *(run.graph_path(g) for g in GRAPHS), run.blockers_path, run.shexp_path]),
+                                        *(run.graph_path(g) for g in GRAPHS), run.blockers_path, run.shexp_path,
+                                        *deform_files]),
     }
     atomic_write_json(run.export_json, meta)  # the commit record: written last
     run.mark_done("export", key)

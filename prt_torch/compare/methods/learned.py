@@ -9,6 +9,10 @@ learned method is timed on the same run-time path.
 exported kind's visibility graph at the OTHER weight precisions than the shipped one (``learned_<kind>`` is the
 shipped graph at the run's precision, ``export.json`` ``precision``), so the accuracy and speed cost of a precision
 are rows of the same table.
+
+A DEFORMABLE run (``export.json`` has ``deformable``): every learned method runs the POSITIONS-IN graph (the shipped
+``positions.onnx``, or one exported here the same way, :func:`prt_torch.export.deformable.positions_graph_module`):
+positions -> dihedral angles -> model, so its time includes the features, as in ``prt play --sequence``.
 """
 
 from __future__ import annotations
@@ -44,7 +48,10 @@ class Learned(MethodBase):
         from prt_torch.runtime.session import OrtGraph
 
         exp = run.export_meta or {}
-        shipped = run.run.graph_path("visibility")
+        dfm = exp.get("deformable")
+        #: a deformable run's export entry (its positions-in graph is what runs), else None
+        self.deform: dict[str, Any] | None = dfm if isinstance(dfm, dict) else None
+        shipped = run.run.positions_graph_path if self.deform else run.run.graph_path("visibility")
         self.graph_precision = self.precision or (exp.get("precision", "fp32") if exp.get("model_kind") == self.kind
                                                   else "fp32")
         if not self.precision and exp.get("model_kind") == self.kind and shipped.is_file() and \
@@ -65,7 +72,8 @@ class Learned(MethodBase):
         from prt_torch.export.run import BASIS_PATTERN
 
         prec = self.precision or "fp32"
-        path = run.run.compare_graph_path(self.kind if not self.precision else f"{self.kind}_{prec}")
+        stem = self.kind if not self.precision else f"{self.kind}_{prec}"
+        path = run.run.compare_graph_path(f"{stem}_positions" if self.deform else stem)
         model_file = run.run.model_path(self.kind)
         if path.is_file() and path.stat().st_mtime >= model_file.stat().st_mtime \
                 and read_metadata(path).get("prt.precision", "fp32") == prec:
@@ -73,6 +81,19 @@ class Learned(MethodBase):
         path.parent.mkdir(parents=True, exist_ok=True)
         model = run.run.model(self.kind)
         graph = VisibilityGraph(model, precision=prec).eval()
+        if self.deform:  # positions -> dihedral angles [+ body features] -> the model, as the export ships it
+            from prt_torch.export.deform_data import DeformData
+            from prt_torch.export.deformable import graph_input_names, positions_graph_module
+
+            d = DeformData.load(run.run.deform_path)
+            module = positions_graph_module(graph, d.edges, d.n_body_features)
+            names = graph_input_names(d.n_body_features)
+            rest = torch.as_tensor(np.asarray(run.character.rest_vertices, np.float32))[None]
+            args = [rest, torch.zeros(1, d.n_body_features)][:len(names)]
+            export_onnx(module, args, path, names, ("visibility",), {k: {0: "B"} for k in (*names, "visibility")},
+                        metadata={"prt.graph": "positions", "prt.model_kind": self.kind, "prt.precision": prec},
+                        int8_weights=BASIS_PATTERN if prec == "int8" else None)
+            return path
         example = torch.zeros(1, model.n_features)
         export_onnx(graph, [example], path, ("pose",), ("visibility",), {"pose": {0: "B"}, "visibility": {0: "B"}},
                     metadata={"prt.graph": "visibility", "prt.model_kind": self.kind, "prt.precision": prec},
@@ -80,13 +101,20 @@ class Learned(MethodBase):
         return path
 
     def visibility(self, batch: FrameBatch) -> np.ndarray:
+        if self.deform:  # the positions-in graph: positions [+ the body features, the pose column's tail]
+            feeds = {"positions": np.ascontiguousarray(batch.positions, dtype=np.float32)}
+            nb = int(self.deform.get("n_body_features", 0))
+            if nb:
+                feeds["body"] = np.ascontiguousarray(batch.features[:, -nb:], dtype=np.float32)
+            return self.graph.run_unchecked(feeds)[0]
         return self.graph.run_unchecked({"pose": np.ascontiguousarray(batch.features, dtype=np.float32)})[0]
 
     def bytes(self) -> int:
         return int(self._bytes)
 
     def info(self) -> dict[str, Any]:
-        return {"kind": self.kind, "graph": self.source, "precision": self.graph_precision}
+        return {"kind": self.kind, "graph": self.source, "precision": self.graph_precision,
+                "input": "positions" if self.deform else "pose"}
 
 
 @register

@@ -1,0 +1,178 @@
+"""Deformable subjects (cloth, issue 11) in the bake: the ONE rule that turns vertex-cache positions into what the
+bake traces and every reader re-derives.
+
+A deformable run's frames are not skinned: the positions of every frame come from the run's vertex cache
+(``simulation.zarr``, :class:`prt_torch.cloth.cache.VertexCache`, written by
+:func:`prt_torch.cloth.simulate.simulate`), the subject is the single-root-joint character
+:attr:`prt_torch.cloth.subject.ClothSubject.character` (body + cloth for the cape, the cloth alone for the flag),
+and
+
+- clusters: :func:`prt_torch.deform.clusters.spatial_clusters` (k-means of the rest vertices into
+  ``bake.max_clusters`` clusters, ``bake.seed``), stored as the dataset's ``cluster``;
+- vertex frames: :class:`prt_torch.deform.frames.FrameOperator` built from the character's rest mesh and those
+  labels (:func:`frame_operator`); normals are its ``n`` rows (:func:`prt_torch.rig.mesh.vertex_normals`);
+- pose features: :func:`prt_torch.cloth.inputs.cloth_features` of each frame (signed dihedral angles of the
+  cloth's interior edges, + the body's pose features when ``cloth.append_pose``), the dataset's ``pose`` column.
+
+:func:`sequence_frames` is used by the plan (:func:`prt_torch.bake.plan.make_plan`) and by ``prt compare --clip``
+alike, :func:`posed_frames` by the bake and ``prt compare --clip``: nothing else computes them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from prt_torch.errors import PrtError
+
+if TYPE_CHECKING:
+    from prt_torch.config import RunConfig
+    from prt_torch.rig.character import Character
+
+
+def is_deformable(attrs_or_cfg: Any) -> bool:
+    """Whether a run config (``cloth`` section set) or a dataset's attrs (``deformable: true``) is deformable."""
+    if isinstance(attrs_or_cfg, dict):
+        return bool(attrs_or_cfg.get("deformable", False))
+    return getattr(attrs_or_cfg, "cloth", None) is not None
+
+
+def simulation_path(cfg: RunConfig) -> Path:
+    """The run's vertex cache, ``<out_dir>/simulation.zarr`` (:attr:`prt_torch.rundir.RunDir.simulation`)."""
+    from prt_torch.rundir import RunDir
+
+    return Path(RunDir(cfg.out_dir.resolve()).simulation)
+
+
+def clusters(character: Character, n_clusters: int, seed: int) -> np.ndarray:
+    """``(V,)`` int32 cluster of each vertex: k-means of the rest vertices (at most one cluster per vertex)."""
+    from prt_torch.deform.clusters import spatial_clusters
+
+    k = max(1, min(int(n_clusters), character.num_vertices))
+    return np.asarray(spatial_clusters(character.rest_vertices, k, seed), dtype=np.int32)
+
+
+def frame_operator(character: Character, labels: np.ndarray) -> Any:
+    """The :class:`~prt_torch.deform.frames.FrameOperator` of a deformable subject (rest mesh + cluster labels):
+    rebuilt identically by the bake's workers, ``prt compare`` and the export from ``character.npz`` and the
+    dataset's ``cluster``."""
+    from prt_torch.deform.frames import FrameOperator
+
+    return FrameOperator.from_rest(np.asarray(character.rest_vertices), np.asarray(character.faces),
+                                   np.asarray(labels))
+
+
+def posed_frames(op: Any, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(normals (F, V, 3), frames (F, V, 3, 3))`` float32 of ``positions (F, V, 3)``: the FrameOperator's frames
+    (rows t, b, n); the normals are their ``n`` rows (the smooth posed normals)."""
+    frames = np.asarray(op.frames(np.asarray(positions)), dtype=np.float32)
+    if frames.ndim == 3:
+        frames = frames[None]
+    return np.ascontiguousarray(frames[:, :, 2, :]), frames
+
+
+@dataclass
+class CachedSequence:
+    """One cached sequence of a deformable subject: ``positions (T, V, 3)`` float32 and ``features (T, A)``
+    float32 (the dataset's ``pose`` column)."""
+
+    name: str
+    positions: np.ndarray
+    features: np.ndarray
+
+
+def check_positions(positions: np.ndarray, n_vertices: int, what: str) -> np.ndarray:
+    """``positions`` as float32 ``(T, n_vertices, 3)`` with T >= 1 and finite values, else a one-line PrtError."""
+    p = np.asarray(positions)
+    if p.ndim != 3 or p.shape[-1] != 3 or p.shape[0] < 1:
+        raise PrtError(f"{what}: positions of shape {p.shape}, expected (frames, {n_vertices}, 3)")
+    if p.shape[1] != n_vertices:
+        raise PrtError(f"{what}: {p.shape[1]} vertices per frame, the subject has {n_vertices} (a cache of "
+                       f"another subject: delete the run's vertex cache and simulate again)")
+    bad = ~np.isfinite(p).all(axis=(1, 2))
+    if bad.any():
+        raise PrtError(f"{what}: NaN or Inf positions in {int(bad.sum())} frame(s) (first: frame "
+                       f"{int(np.argmax(bad))}); the simulation blew up or the cache is damaged")
+    return p.astype(np.float32, copy=False)
+
+
+def load_subject(cfg: RunConfig) -> Any:
+    """The run's :class:`~prt_torch.cloth.subject.ClothSubject` (deterministic from the config)."""
+    from prt_torch.cloth.subject import ClothSubject
+
+    return ClothSubject.load(cfg)
+
+
+def open_cache(cfg: RunConfig, path: Path | None = None) -> Any:
+    """The run's :class:`~prt_torch.cloth.cache.VertexCache`; a missing cache is a one-line PrtError."""
+    from prt_torch.cloth.cache import VertexCache
+
+    path = simulation_path(cfg) if path is None else path
+    if not path.exists():
+        raise PrtError(f"{path}: no vertex cache for the cloth run {cfg.name!r}: run `prt simulate CONFIG` "
+                       f"(or `prt bake CONFIG`, which simulates first)")
+    return VertexCache(path)
+
+
+def missing_sequences(cfg: RunConfig, subject: Any | None = None) -> list[str]:
+    """The sequences of the run (train then held-out) that its vertex cache lacks (all of them without a cache)."""
+    subject = load_subject(cfg) if subject is None else subject
+    wanted = [*subject.sequences("train"), *subject.sequences("heldout")]
+    path = simulation_path(cfg)
+    if not path.exists():
+        return wanted
+    try:
+        have = set(open_cache(cfg, path).sequences())
+    except PrtError:
+        return wanted
+    return [s for s in wanted if s not in have]
+
+
+def sequence_frames(cfg: RunConfig, subject: Any, cache: Any, name: str) -> CachedSequence:
+    """A cached sequence's checked positions and its pose features (:func:`prt_torch.cloth.inputs.cloth_features`
+    of every frame, the body's pose features appended when ``cloth.append_pose``)."""
+    from prt_torch.cloth.inputs import cloth_features
+
+    if name not in set(cache.sequences()):
+        raise PrtError(f"sequence {name!r} is not in the vertex cache {simulation_path(cfg)} (has: "
+                       f"{sorted(cache.sequences())}); run `prt simulate CONFIG`")
+    what = f"vertex cache sequence {name!r}"
+    pos = check_positions(cache.positions(name), subject.character.num_vertices, what)
+    body = None
+    if bool(getattr(cfg.cloth, "append_pose", False)):
+        body = cache.body_features(name)
+        if body is None:
+            raise PrtError(f"{what}: cloth.append_pose is set but the cache has no body features")
+        body = np.asarray(body, dtype=np.float32)
+        if body.shape[0] != pos.shape[0] or not np.isfinite(body).all():
+            raise PrtError(f"{what}: body features of shape {body.shape} (non-finite or not one row per frame)")
+    feats = np.asarray(cloth_features(pos, subject.cloth_edges, body), dtype=np.float32)
+    if feats.shape[0] != pos.shape[0] or not np.isfinite(feats).all():
+        raise PrtError(f"{what}: pose features of shape {feats.shape} are not finite per frame")
+    return CachedSequence(name=name, positions=pos, features=feats)
+
+
+def ensure_simulated(cfg: RunConfig, progress: bool = True) -> list[str]:
+    """Simulate the sequences the run's vertex cache lacks (:func:`prt_torch.cloth.simulate.simulate`, resumable:
+    finished sequences are kept, and a cache simulated with another configuration is refused); returns the names
+    that were missing. No simulator (MuJoCo not installed) with a missing sequence is a one-line
+    :class:`PrtError`; with a complete cache the bake goes on without it."""
+    missing = missing_sequences(cfg)
+    try:
+        from prt_torch.cloth.simulate import simulate
+
+        simulate(cfg, progress=progress and bool(missing))
+    except ModuleNotFoundError as exc:
+        if not missing:
+            return []
+        raise PrtError(f"cloth run {cfg.name!r}: the vertex cache {simulation_path(cfg)} lacks {len(missing)} "
+                       f"sequence(s) ({', '.join(missing[:4])}) and the simulator cannot run ({exc.name or exc} "
+                       f"not installed: pip install 'prt-torch[cloth]')") from None
+    still = missing_sequences(cfg)
+    if still:
+        raise PrtError(f"cloth run {cfg.name!r}: the simulation left {len(still)} sequence(s) missing: "
+                       f"{', '.join(still[:4])}")
+    return missing

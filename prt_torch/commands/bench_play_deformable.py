@@ -1,0 +1,173 @@
+"""``prt bench play RUN`` on a DEFORMABLE (cloth) run: frames/s of the run-time path, measured side by side.
+
+``prt bench play`` hands a run whose export has a ``deformable`` entry to :func:`run` here (same arguments). On the
+run's held-out frames (the dataset's ``positions``; the cached sequences hold the same), everything timed interleaved
+frame by frame in ``--repeats`` blocks, medians reported (:class:`prt_torch.player.deformable.DeformablePlayer`):
+
+* ``frames``: numpy :meth:`FrameOperator.frames_soa` + view directions (the player's "pose" step);
+* ``positions_<precision>``: the positions-in graph (dihedral angles -> model -> visibility) at every weight precision
+  (the shipped one, and ``--precisions`` exported into a temporary directory); ``visibility_pose``: the shipped pose
+  graph on the dataset's features (so ``features ~= positions - visibility_pose`` is the dihedral angles' cost);
+* ``shading``: the shading graph (RPO, ``--brdf``);
+* ``frame_split`` / ``frame_overlap``: the player's whole per-frame path (``compute``) in its two modes - ``fps``;
+* the roofline of :mod:`prt_torch.commands.bench_play` (copy bandwidth, GEMM rate, bytes and FLOPs per step) for the
+  frame's lower bound and ``roofline_fraction``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HELP = "Frames/s of a deformable run's run-time path (positions -> frames + features + visibility -> shading)."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from prt_torch.commands.bench_play import add_arguments as play_arguments
+
+    play_arguments(parser)
+
+
+def _positions_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, device: str) -> dict[str, Any]:
+    """The run's positions-in graph exported at each precision into ``tmp`` (torch): ``{precision: OrtGraph}``."""
+    import torch
+
+    from prt_torch.export.deform_data import DeformData
+    from prt_torch.export.deformable import graph_input_names, positions_graph_module
+    from prt_torch.export.graphs import VisibilityGraph
+    from prt_torch.export.onnx_file import export_onnx
+    from prt_torch.export.run import BASIS_PATTERN, _per_cluster
+    from prt_torch.models.visibility import load_model
+    from prt_torch.runtime.session import OrtGraph
+
+    model = load_model(run, run.export_meta().get("model_kind"))
+    if not _per_cluster(model):
+        return {}
+    d = DeformData.load(run.deform_path)
+    names = graph_input_names(d.n_body_features)
+    rest = torch.as_tensor(np.asarray(run.character().rest_vertices, np.float32))[None]
+    out = {}
+    for p in precisions:
+        module = positions_graph_module(VisibilityGraph(model, precision=p).eval(), d.edges, d.n_body_features)
+        path = tmp / f"positions_{p}.onnx"
+        export_onnx(module, [rest, torch.zeros(1, d.n_body_features)][:len(names)], path, names, ("visibility",),
+                    {k: {0: "B"} for k in (*names, "visibility")}, int8_weights=BASIS_PATTERN if p == "int8" else None)
+        out[p] = OrtGraph(path, threads=threads, device=device)
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from prt_torch import limits
+    from prt_torch.commands.bench_play import bound, copy_bandwidth, gemm_rate, step_costs
+    from prt_torch.errors import check
+    from prt_torch.export.graphs import PRECISIONS
+    from prt_torch.export.onnx_file import initializer_bytes, weight_macs
+    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.rundir import RunDir
+
+    limits.check_int(args.frames, "--frames", 5, limits.MAX_FRAMES)
+    limits.check_int(args.repeats, "--repeats", 1, limits.MAX_REPEATS)
+    limits.check_int(args.warmup, "--warmup", 1, limits.MAX_REPEATS)
+    limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
+    precisions = [p.strip() for p in args.precisions.split(",") if p.strip()]
+    for p in precisions:
+        check(p in PRECISIONS, f"--precisions: unknown precision {p!r} (expected {list(PRECISIONS)})")
+    console = Console(stderr=True)
+    run_dir = RunDir(args.run)
+    player = DeformablePlayer(run_dir, brdf=args.brdf, threads=args.threads, device=args.device, graph="split")
+    fused = DeformablePlayer(run_dir, brdf=args.brdf, threads=args.threads, device=args.device, graph="fused")
+    overlap = DeformablePlayer(run_dir, brdf=args.brdf, threads=args.threads, device=args.device, graph="overlap")
+    try:
+        ds = run_dir.dataset()
+        rows = ds.split_rows("heldout") if "heldout" in ds.splits else np.flatnonzero(ds.done)
+        rows = rows[: max(args.frames, 1)]
+        data = ds.rows(rows, ("pose", "positions"))
+        pos = np.asarray(data["positions"], np.float32)
+        pose = np.asarray(data["pose"], np.float32)
+        nb = player.n_body
+        body = pose[:, pose.shape[1] - nb:] if nb else None
+        seq = player.make_sequence(pos, body, name="heldout")
+        overlap.exposure = fused.exposure = player.exposure
+        n = len(seq)
+        with tempfile.TemporaryDirectory() as tmp:
+            graphs = _positions_graphs(run_dir, [p for p in precisions if p != player.bundle.precision], Path(tmp),
+                                       args.threads, args.device)
+            graphs[f"{player.bundle.precision} (shipped)"] = player.positions_graph
+            times: dict[str, list[float]] = {k: [] for k in ("frames", "visibility_pose", "shading", "frame_split",
+                                                             "frame_overlap", "frame_fused",
+                                                             *(f"positions_{p}" for p in graphs))}
+            vis_pose = player.bundle.graphs["visibility"]
+            shade_vis = player.visibility_from_positions(pos[:1], None if body is None else body[:1])
+
+            def one(i: int, record: bool) -> None:
+                sl = slice(i, i + 1)
+                p_i, s_i, b_i = seq[sl]
+                feeds = player._vis_feeds(p_i, b_i)
+                steps = [("frames", lambda: player.frames(s_i)),
+                         ("visibility_pose", lambda: vis_pose.run_unchecked({"pose": pose[sl]})),
+                         ("shading", lambda: player.shade(state, visibility=shade_vis, checked=False)),
+                         ("frame_split", lambda: player.compute((p_i, s_i, b_i))),
+                         ("frame_overlap", lambda: overlap.compute((p_i, s_i, b_i))),
+                         ("frame_fused", lambda: fused.compute((p_i, s_i, b_i))),
+                         *((f"positions_{p}", (lambda g=g: g.run_unchecked(feeds))) for p, g in graphs.items())]
+                state = player.frames(s_i)
+                k = i % len(steps)  # rotate the order each frame
+                for name, fn in steps[k:] + steps[:k]:
+                    t0 = time.perf_counter()
+                    fn()
+                    if record:
+                        times[name].append(time.perf_counter() - t0)
+
+            for i in range(args.warmup):
+                one(i % n, False)
+            for _ in range(args.repeats):
+                for i in range(n):
+                    one(i, True)
+        ms = {k: float(np.median(v) * 1e3) for k, v in times.items() if v}
+        bw, gemm = copy_bandwidth(), gemm_rate(player.bundle.n_vertices, player.order ** 2, player.bundle.n_terms,
+                                               args.threads)
+        shipped = player.positions_graph.path
+        mbytes, macs = initializer_bytes(shipped), weight_macs(shipped)
+        costs = step_costs(player.bundle.n_vertices, player.order, player.bundle.n_terms, len(player.lighting.dirs),
+                           1, mbytes, macs)
+        bounds = {k: bound(c, bw, gemm) for k, c in costs.items()}
+        frame_bound = bounds["visibility"]["bound_ms"] + bounds["shading"]["bound_ms"] + \
+            bounds["posing"]["bound_ms"]
+        best = min(ms["frame_split"], ms["frame_overlap"], ms["frame_fused"])
+        prec = player.bundle.precision
+        out: dict[str, Any] = {
+            "run": str(run_dir.path), "n_vertices": player.bundle.n_vertices, "sh_order": player.order,
+            "n_edges": int(player.deform.edges.shape[0]), "n_body_features": nb, "precision": prec,
+            "frames_timed": n * args.repeats, "threads": args.threads, "device": args.device,
+            "fps": 1e3 / best, "fps_fused": 1e3 / ms["frame_fused"], "fps_split": 1e3 / ms["frame_split"],
+            "fps_overlap": 1e3 / ms["frame_overlap"],
+            "steps_ms": ms, "features_ms": ms[f"positions_{prec} (shipped)"] - ms["visibility_pose"],
+            "bytes_model": mbytes, "roofline": {"frame_bound_ms": frame_bound, "roofline_fraction": frame_bound / best,
+                                                "steps": bounds},
+            "machine": {"copy_bandwidth_gb_s": bw / 1e9, "gemm_gflop_s": gemm / 1e9},
+        }
+    finally:
+        player.close()
+        overlap.close()
+        fused.close()
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return 0
+    console.print(f"deformable run {out['run']}: {out['n_vertices']} vertices, {out['n_edges']} dihedral angles"
+                  f"{f' + {nb} body features' if nb else ''}, order {out['sh_order']}, {prec} bases, "
+                  f"{args.threads} thread(s), {args.device}")
+    for k, v in sorted(ms.items(), key=lambda kv: -kv[1]):
+        console.print(f"  {k:<28} {v:8.3f} ms")
+    console.print(f"  features (positions - pose graph) ~ {out['features_ms']:.3f} ms")
+    console.print(f"frame: {out['fps']:.0f} frames/s (fused {out['fps_fused']:.0f}, split {out['fps_split']:.0f}, "
+                  f"overlap {out['fps_overlap']:.0f});"
+                  f" roofline bound {frame_bound:.3f} ms -> fraction {out['roofline']['roofline_fraction']:.2f}")
+    return 0

@@ -1,0 +1,256 @@
+"""The run-time data of a DEFORMABLE run (config with ``cloth:``): the frame operator and the positions-in graph.
+
+A deformable run (issue 11) is a normal run whose ``pose`` column is the deformable input features
+(:func:`prt_torch.cloth.inputs.cloth_features`: signed dihedral angles of the cloth's interior edges, plus the
+body's pose features for the cape) and whose vertex frames come from
+:class:`prt_torch.deform.frames.FrameOperator` (no bones). ``prt export`` ships, besides the usual graphs:
+
+* the deform data (``RunDir.deform_path``, ``.npz``, loadable without torch): the frame operator's arrays
+  (:meth:`FrameOperator.arrays`, keys prefixed ``op_``), the cloth's interior ``edges (E, 4)`` in subject vertex
+  indices, ``cloth_slice (2,)`` (start, stop) and ``n_body_features ()`` (0: no body input);
+* the positions-in graph (``RunDir.positions_graph_path``): ``positions (B, V, 3)`` [, ``body (B, Ab)``] ->
+  dihedral angles (:func:`dihedral_module`, the rule of
+  :func:`prt_torch.deform.dihedral.dihedral_angles`) [concatenated with ``body``] -> the
+  model -> ``visibility (B, V, C)`` (original vertex order, the export's precision), checked against torch
+  (parity, relative error per precision) and against the dataset: the numpy rule ``cloth_features`` on the held-out
+  positions must give the dataset's ``pose`` column, and the frame operator the dataset's baked ``frames``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from prt_torch.errors import PrtError, check
+from prt_torch.export.deform_data import write_deform_data
+from prt_torch.rundir import RunDir
+
+if TYPE_CHECKING:
+    import torch
+
+#: version of the deformable export (part of the export stage key)
+DEFORMABLE_VERSION = 2  # 2: positions_fused.onnx
+#: the positions-in graph's inputs (``body`` only when the run appends body features)
+POSITIONS_INPUTS = ("positions", "body")
+#: worst |numpy cloth_features - dataset pose| (radians) and |FrameOperator frames - baked frames| accepted
+FEATURE_ATOL, FRAMES_ATOL = 1e-3, 2e-3
+
+
+@dataclass
+class DeformSpec:
+    """What a deformable export needs beyond a skinned one.
+
+    Attributes:
+        edges: ``(E, 4)`` int64 interior edges ``(i, j, k, l)`` of the cloth, SUBJECT vertex indices.
+        cloth_slice: the cloth's vertex range in the subject.
+        n_body_features: body pose features appended after the dihedral angles (0: none).
+        operator: the :class:`prt_torch.deform.frames.FrameOperator` of the subject (the bake's frames rule).
+    """
+
+    edges: np.ndarray
+    cloth_slice: slice
+    n_body_features: int
+    operator: Any
+
+
+def run_config_dict(run: RunDir) -> dict[str, Any]:
+    """The run config recorded by the bake (the dataset's ``config`` attrs; ``{}`` when absent)."""
+    try:
+        cfg = run.dataset().attrs.get("config", {}) or {}
+    except PrtError:
+        return {}
+    return dict(cfg) if isinstance(cfg, dict) else {}
+
+
+def is_deformable(run: RunDir) -> bool:
+    """Whether the run's dataset is a deformable one (:func:`prt_torch.bake.deformable.is_deformable` of its attrs,
+    or its recorded config has a ``cloth:`` section)."""
+    from prt_torch.bake.deformable import is_deformable as attrs_deformable
+
+    try:
+        attrs = dict(run.dataset().attrs)
+    except PrtError:
+        return False
+    return attrs_deformable(attrs) or bool(run_config_dict(run).get("cloth"))
+
+
+def deform_spec(run: RunDir) -> DeformSpec:
+    """The :class:`DeformSpec` of a deformable run: cloth edges and layout from
+    :class:`prt_torch.cloth.subject.ClothSubject` of the recorded config, the frame operator from the character's
+    rest mesh and the dataset's cluster labels (:meth:`FrameOperator.from_rest`, the bake's rule)."""
+    from prt_torch.bake.deformable import load_subject
+    from prt_torch.config import config_from_dict
+
+    cfg = config_from_dict(run_config_dict(run), source=f"{run.dataset_path} config attrs")
+    check(cfg.cloth is not None, f"{run.path}: not a deformable run (its config has no cloth: section)")
+    subject = load_subject(cfg)
+    n_body = 0
+    if getattr(cfg.cloth, "append_pose", False):
+        n_body = _body_width(run, subject)
+    return DeformSpec(edges=np.asarray(subject.cloth_edges, dtype=np.int64), cloth_slice=subject.cloth_slice,
+                      n_body_features=n_body, operator=frame_operator(run))
+
+
+def _body_width(run: RunDir, subject: Any) -> int:
+    """Body features appended to the dihedral angles: the dataset's feature width minus the edge count."""
+    width = int(run.dataset().pose.shape[1])
+    n_edges = int(np.asarray(subject.cloth_edges).shape[0])
+    check(width >= n_edges, f"{run.dataset_path}: pose has {width} columns, fewer than the cloth's {n_edges} edges")
+    return width - n_edges
+
+
+def frame_operator(run: RunDir) -> Any:
+    """:class:`FrameOperator` of the run's subject (:func:`prt_torch.bake.deformable.frame_operator`: rest mesh of
+    ``character.npz``, the dataset's cluster labels - the bake's rule)."""
+    from prt_torch.bake.deformable import frame_operator as subject_operator
+
+    return subject_operator(run.character(), np.asarray(run.dataset().cluster))
+
+
+# -- the positions-in graph -----------------------------------------------------------------------------------
+def dihedral_module(edges: np.ndarray) -> torch.nn.Module:
+    """``positions (B, V, 3)`` -> ``(B, E)`` signed dihedral angles: the torch twin of the numpy rule
+    (:class:`prt_torch.deform.dihedral_torch.DihedralAngles`, laid out for a fast ONNX graph)."""
+    from prt_torch.deform.dihedral_torch import DihedralAngles
+
+    return DihedralAngles(np.asarray(edges)).eval()
+
+
+def positions_graph_module(vis_graph: Any, edges: np.ndarray, n_body_features: int) -> torch.nn.Module:
+    """``positions (B, V, 3)`` [, ``body (B, Ab)``] -> ``visibility (B, V, C)``: the dihedral angles
+    (:func:`dihedral_module`) [+ body features] fed to ``vis_graph`` (a :class:`VisibilityGraph`)."""
+    import torch
+
+    class PositionsGraph(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.dihedral = dihedral_module(edges)
+            self.vis = vis_graph
+            self.n_body = int(n_body_features)
+
+        def features(self, positions: torch.Tensor, body: torch.Tensor | None = None) -> torch.Tensor:
+            f = self.dihedral(positions)
+            return f if body is None else torch.cat([f, body], dim=-1)
+
+        def forward(self, positions: torch.Tensor, body: torch.Tensor | None = None) -> torch.Tensor:
+            return self.vis(self.features(positions, body))
+
+    return PositionsGraph().eval()
+
+
+def positions_fused_module(fused_graph: Any, edges: np.ndarray, n_body_features: int) -> torch.nn.Module:
+    """``positions (B, V, 3)`` [, ``body``], then the shading inputs of
+    :data:`prt_torch.export.graphs.FUSED_INPUTS` (frames, view dirs in ``fused_graph``'s vertex order, lobes, RPO)
+    -> ``radiance (B, V, 3)`` (that order): the dihedral angles [+ body] fed to ``fused_graph``
+    (a :class:`~prt_torch.export.graphs.FusedGraph`, cluster-sorted like the skinned export's fused graph)."""
+    import torch
+
+    class PositionsFused(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.dihedral = dihedral_module(edges)
+            self.fused = fused_graph
+            self.n_body = int(n_body_features)
+
+        def forward(self, positions: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
+            f = self.dihedral(positions)
+            if self.n_body:
+                f, rest = torch.cat([f, rest[0]], dim=-1), rest[1:]
+            return self.fused(f, *rest)
+
+    return PositionsFused().eval()
+
+
+def graph_input_names(n_body_features: int) -> tuple[str, ...]:
+    """The positions-in graph's input names for a run with ``n_body_features`` body features."""
+    return POSITIONS_INPUTS if n_body_features > 0 else POSITIONS_INPUTS[:1]
+
+
+def ship_deformable(run: RunDir, spec: DeformSpec, vis_graph: Any, held: dict[str, np.ndarray],
+                    base_meta: dict[str, Any], rtol: float, opset: int = 17, exporter: str = "torchscript",
+                    int8_pattern: str | None = None, fused_graph: Any = None,
+                    fused_inputs: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
+    """Write the deform data and the positions-in graph of a deformable run; check them. Returns the
+    ``export.json`` ``deformable`` entry.
+
+    ``held``: held-out ``pose (F, A)``, ``frames (F, V, 3, 3)``, ``positions (F, V, 3)`` of the dataset
+    (:func:`prt_torch.export.run.heldout_inputs`); ``vis_graph``: the exported :class:`VisibilityGraph`;
+    ``fused_graph`` / ``fused_inputs``: the export's :class:`FusedGraph` and its parity inputs (``pose`` and the
+    shading inputs, vertex axes in its order) - given, the positions-in radiance graph is shipped too.
+    Raises :class:`PrtError` when the numpy feature rule does not give the dataset's ``pose`` column, the frame
+    operator does not give its baked ``frames``, or ONNX/torch parity fails.
+    """
+    import torch
+
+    from prt_torch.cloth.inputs import cloth_features
+    from prt_torch.export.onnx_file import export_onnx, initializer_bytes
+    from prt_torch.export.parity import check_parity
+
+    pos, pose, frames = held["positions"], held["pose"], held["frames"]
+    V = pos.shape[1]
+    nb = int(spec.n_body_features)
+    edges = np.asarray(spec.edges, dtype=np.int64)
+    check(edges.ndim == 2 and edges.shape[1] == 4 and edges.size > 0 and int(edges.max()) < V and int(edges.min()) >= 0,
+          f"cloth edges must be (E, 4) subject vertex indices < {V}, got shape {edges.shape}")
+    check(pose.shape[1] == edges.shape[0] + nb, f"the model takes {pose.shape[1]} features but the cloth has "
+                                                f"{edges.shape[0]} interior edges + {nb} body features")
+    body = np.ascontiguousarray(pose[:, pose.shape[1] - nb:]) if nb else None
+    feats = np.asarray(cloth_features(pos, edges, body), dtype=np.float32)
+    feat_err = float(np.abs(feats - pose).max())
+    check(feat_err <= FEATURE_ATOL, f"{run.path}: cloth_features of the held-out positions differ from the "
+                                    f"dataset's pose column by {feat_err:.3g} (> {FEATURE_ATOL}): re-bake the run")
+    op_frames = np.asarray(spec.operator.frames(pos), dtype=np.float32)
+    frames_err = float(np.abs(op_frames - frames).max())
+    check(frames_err <= FRAMES_ATOL, f"{run.path}: the frame operator's frames differ from the baked frames by "
+                                     f"{frames_err:.3g} (> {FRAMES_ATOL}): re-bake the run")
+    write_deform_data(run, spec)
+
+    module = positions_graph_module(vis_graph, edges, nb)
+    names = graph_input_names(nb)
+    inputs = {"positions": np.ascontiguousarray(pos, dtype=np.float32)}
+    if nb:
+        inputs["body"] = body
+    batch = {0: "B"}
+    path = run.positions_graph_path
+    args = [torch.from_numpy(inputs[k]) for k in names]
+    meta = {**base_meta, "prt.graph": "positions", "prt.vertex_order": "original",
+            "prt.n_edges": int(edges.shape[0]), "prt.n_body_features": nb,
+            "prt.positions": "positions input (B, V, 3) world, subject vertices (body then cloth for the cape)"}
+    export_onnx(module, args, path, names, ("visibility",), {**{k: batch for k in names}, "visibility": batch},
+                metadata=meta, opset=opset, exporter=exporter, int8_weights=int8_pattern)
+    from prt_torch.export.run import _emulate_int8
+
+    _emulate_int8(module, True)
+    try:
+        p = check_parity(module, path, inputs, rtol=rtol)
+    finally:
+        _emulate_int8(module, False)
+    fused: dict[str, Any] = {}
+    if fused_graph is not None and fused_inputs is not None:
+        from prt_torch.export.graphs import FUSED_INPUTS
+
+        fmod = positions_fused_module(fused_graph, edges, nb)
+        fnames = (*names, *FUSED_INPUTS[1:])
+        finputs = {**inputs, **{k: fused_inputs[k] for k in FUSED_INPUTS[1:]}}
+        fpath = run.positions_fused_path
+        dyn = {k: batch for k in (*names, "frames", "view_dirs", "radiance")}
+        export_onnx(fmod, [torch.from_numpy(np.ascontiguousarray(finputs[k], dtype=np.float32)) for k in fnames],
+                    fpath, fnames, ("radiance",), dyn, metadata={**meta, "prt.graph": "positions_fused",
+                                                                 "prt.vertex_order": "cluster"
+                                                                 if fused_graph.vertex_order is not None
+                                                                 else "original"},
+                    opset=opset, exporter=exporter, int8_weights=int8_pattern)
+        _emulate_int8(fmod, True)
+        try:
+            fp = check_parity(fmod, fpath, finputs, rtol=rtol)
+        finally:
+            _emulate_int8(fmod, False)
+        fused = {"fused_file": run.relative(fpath), "fused_inputs": list(fnames),
+                 "fused_parity": {**fp.as_dict(), "file_bytes": fpath.stat().st_size}}
+    return {**fused,"version": DEFORMABLE_VERSION, "deform_file": run.relative(run.deform_path),
+            "positions_file": run.relative(path), "inputs": list(names), "n_edges": int(edges.shape[0]),
+            "n_body_features": nb, "cloth_slice": [int(spec.cloth_slice.start or 0), int(spec.cloth_slice.stop)],
+            "features_max_error": feat_err, "frames_max_error": frames_err,
+            "parity": {**p.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes": path.stat().st_size}}

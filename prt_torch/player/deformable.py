@@ -1,0 +1,256 @@
+"""The run-time player of a DEFORMABLE run (cloth, issue 11): cached positions -> frames + visibility -> RPO shading.
+
+numpy + onnxruntime only (never torch). Per frame (:meth:`DeformablePlayer.compute`)::
+
+    positions (B, V, 3) and vertex-last (B, 3, V) [+ body features (B, Ab), the cape]   (a Sequence holds both)
+        --numpy FrameOperator.frames_soa--> frames (B, 9, V), normals; view dirs (B, 3, V)        ("pose")
+    [fused]   ORT positions_fused.onnx(positions, frames, view dirs, lobes, RPO): dihedral angles -> model ->
+              RPO shading -> radiance (B, V, 3), vertex axes in the export's cluster order like the skinned
+              fused graph (frames / view dirs permuted in, radiance back)                                ("fused")
+    [split]   ORT positions.onnx: dihedral angles -> model--> visibility (B, V, C)         ("visibility")
+              ORT shading.onnx (the skinned player's Player.shade)--> radiance (B, V, 3)     ("shading")
+    [overlap] split, with the positions graph on a worker thread while numpy computes the frames
+
+Everything after the visibility is the skinned player's (:class:`prt_torch.player.Player`: lighting, RPO catalogue,
+shading graph, tone map, renderer, video writer, timings): this class only replaces the posing (positions come from
+the run's vertex cache ``simulation.zarr``, :class:`prt_torch.cloth.cache.VertexCache`, or an array) and the
+visibility input (positions instead of pose features).
+
+Embedding::
+
+    p = DeformablePlayer("runs/flag")
+    p.play("wind_heldout", out="flag.mp4")                 # a cached sequence
+    state, radiance = p.compute_positions(positions[:1])     # (1, V, 3) positions
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from prt_torch.errors import PrtError, check
+from prt_torch.player.player import Player, PlayResult, camera_target
+from prt_torch.player.posing import PoseBatch
+from prt_torch.player.timing import FrameTimer
+from prt_torch.rundir import RunDir
+from prt_torch.runtime.session import OrtGraph
+
+#: graph modes of the deformable player
+DEFORMABLE_MODES = ("fused", "split", "overlap")
+#: playback rate when the vertex cache records none
+DEFAULT_FPS = 30.0
+
+
+@dataclass
+class Sequence:
+    """A deformable sequence to play: ``positions (T, V, 3)`` float32 of the whole subject (the positions graph's
+    layout) and the same vertex-last ``positions_soa (T, 3, V)`` (the frames' layout), ``body (T, Ab)`` body features
+    (the cape; ``None``: none), its ``name`` and ``fps``. Slicing gives the frames ``(positions, positions_soa, body)``
+    (what :meth:`DeformablePlayer.compute` takes, the ``locals`` of :meth:`Player.play`)."""
+
+    name: str
+    positions: np.ndarray
+    positions_soa: np.ndarray
+    body: np.ndarray | None = None
+    fps: float = DEFAULT_FPS
+
+    def __len__(self) -> int:
+        return int(self.positions_soa.shape[0])
+
+    def __getitem__(self, s: slice) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        return self.positions[s], self.positions_soa[s], (None if self.body is None else self.body[s])
+
+
+class DeformablePlayer(Player):
+    """Plays cached sequences of an exported deformable run (see the module docstring).
+
+    Args: those of :class:`Player` except ``graph``: ``"split"`` (default: positions graph, then the shading graph;
+    the fastest measured on the 7.7k flag), ``"fused"`` (one positions -> radiance call) or ``"overlap"`` (split,
+    the positions graph on a worker thread while numpy computes the frames); ``crowd_chunk`` is not used.
+    """
+
+    def __init__(self, run_dir: str | os.PathLike[str] | RunDir, env: str | os.PathLike[str] | None = None,
+                 brdf: str | None = None, graph: str = "split", threads: int = 2,
+                 window_size: tuple[int, int] = (480, 640), exposure: Any = None, n_lobes: int = 3,
+                 blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu") -> None:
+        from prt_torch.export.deform_data import DeformData
+
+        check(graph in DEFORMABLE_MODES, f"unknown graph mode {graph!r} for a deformable run: expected one of "
+                                         f"{list(DEFORMABLE_MODES)}")
+        super().__init__(run_dir, env=env, brdf=brdf, graph="split", threads=threads, window_size=window_size,
+                         exposure=exposure, n_lobes=n_lobes, blas_threads=blas_threads, spinning=spinning,
+                         device=device)
+        self.mode = graph
+        run = self.bundle.run
+        meta = self.bundle.meta.get("deformable")
+        check(isinstance(meta, dict), f"{run.path} is not an exported deformable run (no 'deformable' entry in "
+                                      f"{run.export_json.name}): play it with --clip, or run `prt export` on it")
+        self.deform = DeformData.load(run.deform_path)  # verified against export.json's sha256 by the bundle
+        self.n_body = self.deform.n_body_features
+        self.positions_graph = OrtGraph(run.positions_graph_path, threads=threads, spinning=spinning, device=device)
+        md = self.positions_graph.metadata
+        check(md.get("prt.character_hash") == self.bundle.meta["character_hash"],
+              f"{run.positions_graph_path.name}: exported for another subject: run `prt export {run.path} --force`")
+        self.positions_fused: OrtGraph | None = None
+        if graph == "fused":
+            check("fused_file" in meta, f"{run.export_json}: no positions_fused graph (an older export): run `prt "
+                                        f"export {run.path} --force`, or play with --graph split")
+            self.positions_fused = OrtGraph(run.positions_fused_path, threads=threads, spinning=spinning,
+                                            device=device)
+        self._vis_overlap: OrtGraph | None = None
+        self._threads, self._spinning = threads, spinning
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def sequences(self) -> list[str]:
+        """The sequences of the run's vertex cache."""
+        return list(self._cache().sequences())
+
+    def _cache(self) -> Any:
+        try:
+            from prt_torch.cloth.cache import VertexCache
+        except ImportError as exc:  # a player-only install has no zarr
+            raise PrtError(f"reading the run's vertex cache needs the bake extra (zarr): {exc}; or play a positions "
+                           f"array (DeformablePlayer.make_sequence)") from None
+
+        path = self.bundle.run.simulation
+        check(path.exists(), f"{path}: no vertex cache in this run (run `prt simulate` / `prt bake` on its config)")
+        return VertexCache(path)
+
+    def sequence(self, name: str) -> Sequence:
+        """A cached sequence of the run by name (positions and, for the cape, body features), checked."""
+        cache = self._cache()
+        names = list(cache.sequences())
+        check(name in names, f"unknown sequence {name!r}: the run's vertex cache has {names}")
+        pos = np.asarray(cache.positions(name), dtype=np.float32)
+        body = cache.body_features(name) if self.n_body else None
+        rate = getattr(cache, "fps", None)  # the cache's frame rate when it records one
+        fps = float((rate(name) if callable(rate) else rate) or DEFAULT_FPS)
+        return self.make_sequence(pos, body, name=name, fps=fps)
+
+    def make_sequence(self, positions: np.ndarray, body: np.ndarray | None = None, name: str = "positions",
+                      fps: float = DEFAULT_FPS) -> Sequence:
+        """A :class:`Sequence` of ``positions (T, V, 3)`` (and ``body (T, Ab)``), checked: one-line
+        :class:`PrtError` for a wrong shape or vertex count, NaN/Inf, missing or extra body features."""
+        v = self.bundle.n_vertices
+        pos = np.asarray(positions, dtype=np.float32)
+        check(pos.ndim == 3 and pos.shape[2] == 3 and pos.shape[0] >= 1,
+              f"positions must be (T, V, 3) with T >= 1, got shape {pos.shape}")
+        check(pos.shape[1] == v, f"positions have {pos.shape[1]} vertices, the run's subject {v}")
+        bad = ~np.isfinite(pos).all(axis=(1, 2))
+        check(not bad.any(), f"positions contain NaN or Inf (first at frame {int(np.argmax(bad))})")
+        if self.n_body:
+            check(body is not None, f"this run takes {self.n_body} body features per frame with the positions")
+            b = np.asarray(body, dtype=np.float32)
+            check(b.shape == (pos.shape[0], self.n_body),
+                  f"body features must be ({pos.shape[0]}, {self.n_body}), got shape {b.shape}")
+            check(bool(np.isfinite(b).all()), "body features contain NaN or Inf")
+            body = np.ascontiguousarray(b)
+        else:
+            check(body is None, "this run takes no body features")
+        pos = np.ascontiguousarray(pos)
+        return Sequence(name, pos, np.ascontiguousarray(pos.transpose(0, 2, 1)), body, float(fps))
+
+    # -- per-frame path ---------------------------------------------------------------------------
+    def frames(self, positions_soa: np.ndarray) -> PoseBatch:
+        """numpy vertex frames, normals and view directions of ``positions_soa (B, 3, V)`` (vertex-last
+        :class:`PoseBatch`; ``features`` is empty: the positions graph takes the positions)."""
+        p = np.ascontiguousarray(positions_soa, dtype=np.float32)
+        frames, normals = self.deform.operator.frames_soa(p)
+        view = np.subtract(self.eye.reshape(1, 3, 1), p)
+        view *= 1.0 / np.maximum(np.sqrt(np.einsum("bkv,bkv->bv", view, view)), 1e-12)[:, None]
+        return PoseBatch(p, normals, frames, view, np.zeros((p.shape[0], 0), np.float32))
+
+    def _vis_feeds(self, positions: np.ndarray, body: np.ndarray | None) -> dict[str, np.ndarray]:
+        feeds = {"positions": np.ascontiguousarray(positions, dtype=np.float32)}
+        if self.n_body:
+            feeds["body"] = np.ascontiguousarray(body, dtype=np.float32)
+        return feeds
+
+    def visibility_from_positions(self, positions: np.ndarray, body: np.ndarray | None = None,
+                                  checked: bool = True) -> np.ndarray:
+        """``positions (B, V, 3)`` [+ ``body (B, Ab)``] -> ``(B, V, C)`` local visibility (ORT positions graph)."""
+        feeds = self._vis_feeds(positions, body)
+        g = self.positions_graph
+        return g.run(feeds)["visibility"] if checked else g.run_unchecked(feeds)[0]
+
+    def compute_positions(self, positions: np.ndarray, body: np.ndarray | None = None,
+                          timer: FrameTimer | None = None, checked: bool = True) -> tuple[PoseBatch, np.ndarray]:
+        """The whole per-frame path for ``positions (B, V, 3)`` -> (posed batch, radiance (B, V, 3))."""
+        if checked:
+            seq = self.make_sequence(positions, body)
+            return self.compute(seq[:], timer)
+        p = np.ascontiguousarray(positions, dtype=np.float32)
+        return self.compute((p, np.ascontiguousarray(p.transpose(0, 2, 1)), body), timer)
+
+    def compute(self, frame: Any, timer: FrameTimer | None = None) -> tuple[PoseBatch, np.ndarray]:
+        """``frame = (positions (B, V, 3), positions_soa (B, 3, V), body (B, Ab) | None)`` (a slice of a
+        :class:`Sequence`, checked) -> (posed batch, radiance (B, V, 3)); the per-frame path of :meth:`Player.play`."""
+        positions, positions_soa, body = frame
+        t0 = time.perf_counter()
+        if self.mode == "fused" and self.positions_fused is not None:
+            state = self.frames(positions_soa)
+            o = self.vertex_order
+            feeds = {**self._vis_feeds(positions, body), "frames": state.in_order("frames", o),
+                     "view_dirs": state.in_order("view_dirs", o), **self._light_feeds()}
+            t1 = time.perf_counter()
+            out = self._to_original(self.positions_fused.run_unchecked(feeds)[0])
+            if timer is not None:
+                timer.add("pose", t1 - t0)
+                timer.add("fused", time.perf_counter() - t1)
+            return state, out
+        if self.mode == "overlap":
+            if self._pool is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prt-visibility")
+                self._vis_overlap = OrtGraph(self.positions_graph.path, threads=1, spinning=self._spinning,
+                                             device=self.device)
+            fut = self._pool.submit(self._vis_overlap.run_unchecked, self._vis_feeds(positions, body))
+            state = self.frames(positions_soa)
+            t1 = time.perf_counter()
+            vis = fut.result()[0]
+        else:
+            state = self.frames(positions_soa)
+            t1 = time.perf_counter()
+            vis = self.positions_graph.run_unchecked(self._vis_feeds(positions, body))[0]
+        t2 = time.perf_counter()
+        out = self.shade(state, visibility=vis, checked=False)
+        if timer is not None:
+            timer.add("pose", t1 - t0)
+            timer.add("visibility", t2 - t1)  # overlap: the part of the model call not hidden behind the frames
+            timer.add("shading", time.perf_counter() - t2)
+        return state, out
+
+    def frame_sequence(self, seq: Sequence) -> None:
+        """Aim the camera at the whole sequence: the player's rule (:func:`camera_target`: bounding-box centre and
+        diagonal) over every position of every frame instead of the rest mesh (a flag blown sideways leaves the
+        rest mesh's box)."""
+        self.center, self.radius = camera_target(seq.positions.reshape(-1, 3))
+
+    def clip_locals(self, clip: Any, fps: float | None = None) -> Any:
+        """The frames :meth:`Player.play` iterates: the :class:`Sequence` ``clip`` (a name: the cached one)."""
+        return clip if isinstance(clip, Sequence) else self.sequence(str(clip))
+
+    def play(self, sequence: str | Sequence, out: str | os.PathLike[str] | None = None,  # type: ignore[override]
+             png_dir: str | os.PathLike[str] | None = None, max_frames: int | None = None,
+             fps: float | None = None, timings: str | os.PathLike[str] | None = None,
+             show: bool = False, progress: bool = True) -> PlayResult:
+        """Play a cached sequence (name) or a :class:`Sequence` (:meth:`make_sequence`) like :meth:`Player.play`;
+        ``fps``: the video rate (default: the sequence's; frames are not resampled)."""
+        seq = self.clip_locals(sequence)
+        self.frame_sequence(seq)
+        return super().play(seq, out=out, png_dir=png_dir, max_frames=max_frames, fps=fps or seq.fps,
+                            timings=timings, show=show, progress=progress)
+
+
+def is_deformable_export(run_dir: str | os.PathLike[str] | RunDir) -> bool:
+    """Whether the run's export is a deformable one (``export.json`` has a ``deformable`` entry; unverified)."""
+    run = RunDir.of(run_dir)
+    try:
+        return isinstance(run.read_json(run.export_json).get("deformable"), dict)
+    except PrtError:
+        return False

@@ -1,0 +1,151 @@
+"""The deformable player (prt_torch.player.deformable): frames, shading, no torch, bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from prt_torch.errors import PrtError
+from tests.player.deformable_run import build_deformable_run, flag_mesh, heldout_positions
+
+
+@pytest.fixture(scope="session")
+def deformable_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
+    return build_deformable_run(tmp_path_factory.getbasetemp())
+
+
+@pytest.fixture(scope="module")
+def player(deformable_run):
+    from prt_torch.player.deformable import DeformablePlayer
+
+    p = DeformablePlayer(deformable_run[0], brdf="phong")
+    yield p
+    p.close()
+
+
+def test_frames_equal_the_frame_operator(player, deformable_run) -> None:
+    """The player's vertex-last float32 frames == FrameOperator.frames (float64 reference) of the same positions,
+    and its normals are their n rows."""
+    from prt_torch.deform.frames import FrameOperator
+
+    rest, faces = flag_mesh()
+    op = FrameOperator.from_rest(rest, faces, player.deform.operator.labels)
+    pos = heldout_positions()[::5]
+    state = player.frames(np.ascontiguousarray(pos.transpose(0, 2, 1)))
+    np.testing.assert_allclose(state.frames_vx33(), op.frames(pos), atol=2e-5)
+    np.testing.assert_allclose(state.normals.transpose(0, 2, 1), op.frames(pos)[:, :, 2], atol=2e-5)
+    np.testing.assert_allclose(state.positions_vx3(0), pos[0])
+
+
+def test_played_radiance_equals_the_shipping_shader(player) -> None:
+    """A played frame's radiance == prt_torch.eval.shipping's RPO shading (torch, the compare yardstick) of the same
+    visibility, frames, camera, lobes and RPO."""
+    from prt_torch.brdf.rpo import RPO
+    from prt_torch.eval.shipping import ShippingShader
+
+    pos = heldout_positions()[7:9]
+    state, rad = player.compute_positions(pos)
+    vis = player.visibility_from_positions(pos)
+    rpo = RPO.load(player.bundle.run.rpo_path("phong"))
+    shader = ShippingShader({"sky": player.lighting}, {"phong": rpo}, player.eye, paths=("lobes",))
+    ref = shader.shade_chunk({"m": vis}, state.frames_vx33(), pos)[("sky", "phong", "lobes")]["m"]
+    assert rad.shape == ref.shape == (2, pos.shape[1], 3)
+    assert float(np.abs(rad - ref).max() / np.abs(ref).max()) < 1e-4
+
+
+@pytest.mark.parametrize("mode", ["fused", "overlap"])
+def test_graph_modes_agree(player, deformable_run, mode: str) -> None:
+    """positions graph + shading graph (the default) == the fused positions -> radiance graph (cluster order) ==
+    the overlapped split path."""
+    from prt_torch.player.deformable import DeformablePlayer
+
+    assert player.mode == "split" and player.vertex_order is not None
+    pos = heldout_positions()[3:4]
+    _, a = player.compute_positions(pos)
+    p2 = DeformablePlayer(deformable_run[0], brdf="phong", graph=mode)
+    try:
+        _, b = p2.compute_positions(pos)
+    finally:
+        p2.close()
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_play_writes_video_and_timings(player, tmp_path: Path) -> None:
+    seq = player.make_sequence(heldout_positions(), name="held")
+    res = player.play(seq, out=tmp_path / "held.mp4", max_frames=4, timings=tmp_path / "t.json", progress=False)
+    assert res.frames == 4 and (tmp_path / "held.mp4").stat().st_size > 0
+    t = json.loads((tmp_path / "t.json").read_text())
+    assert t["clip"] == "held" and set(t["frames_ms"]) >= {"pose", "visibility", "shading", "render"}
+    assert all(len(v) == 4 for v in t["frames_ms"].values())
+
+
+def test_deformable_player_never_imports_torch(deformable_run) -> None:
+    code = (f"import sys, numpy as np\nfrom prt_torch.player.deformable import DeformablePlayer\n"
+            f"from tests.player.deformable_run import heldout_positions\n"
+            f"p = DeformablePlayer({str(deformable_run[0])!r})\n"
+            f"s, r = p.compute_positions(heldout_positions()[:2])\nassert np.isfinite(r).all()\n"
+            f"p.close()\nassert 'torch' not in sys.modules, 'torch imported'\nprint('ok')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         cwd=Path(__file__).resolve().parents[2])
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+class _Cache:
+    """A vertex cache stand-in holding one sequence (the reader is prt_torch.cloth.cache's, tested there)."""
+
+    fps = 24.0
+
+    def sequences(self) -> list[str]:
+        return ["wind0"]
+
+    def positions(self, name: str) -> np.ndarray:
+        return heldout_positions()
+
+
+@pytest.mark.parametrize("case", ["nan", "vertices", "shape", "body", "sequence", "no_cache"])
+def test_bad_input_one_line_errors(player, case: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    pos = heldout_positions()[:3].copy()
+    with pytest.raises(PrtError) as exc:
+        if case == "nan":
+            pos[1, 5, 0] = np.nan
+            player.compute_positions(pos)
+        elif case == "vertices":
+            player.compute_positions(pos[:, :-1])
+        elif case == "shape":
+            player.compute_positions(pos[0])
+        elif case == "body":
+            player.make_sequence(pos, body=np.zeros((3, 2), np.float32))
+        elif case == "sequence":
+            monkeypatch.setattr(type(player), "_cache", lambda self: _Cache())
+            assert player.sequence("wind0").fps == 24.0 and len(player.sequence("wind0")) == len(heldout_positions())
+            player.play("no_such_sequence", max_frames=1, progress=False)
+        else:
+            player.play("wind0", max_frames=1, progress=False)
+    msg = str(exc.value)
+    assert "\n" not in msg
+    want = {"nan": "NaN", "vertices": "vertices", "shape": "(T, V, 3)", "body": "no body features",
+            "sequence": "unknown sequence 'no_such_sequence'", "no_cache": "vertex cache"}[case]
+    assert want in msg
+
+
+def test_cli_play_sequence(deformable_run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                           capsys: pytest.CaptureFixture[str]) -> None:
+    """`prt play RUN --sequence NAME --out MP4` plays a cached sequence (the cache reader stubbed) and writes the
+    video and the timings; --sequence with --clip is a one-line error."""
+    from prt_torch.cli import main
+    from prt_torch.player.deformable import DeformablePlayer
+
+    monkeypatch.setattr(DeformablePlayer, "_cache", lambda self: _Cache())
+    out = tmp_path / "wind.mp4"
+    assert main(["play", str(deformable_run[0]), "--sequence", "wind0", "--out", str(out), "--max-frames", "2",
+                 "--size", "120x160", "--timings", str(tmp_path / "t.json")]) == 0
+    assert out.stat().st_size > 0 and json.loads((tmp_path / "t.json").read_text())["clip"] == "wind0"
+    capsys.readouterr()
+    assert main(["play", str(deformable_run[0]), "--sequence", "wind0", "--clip", "walk", "--out", str(out)]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "--sequence" in err and len(err.splitlines()) == 1
