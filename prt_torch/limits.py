@@ -160,22 +160,29 @@ def parse_size(text: str, name: str = "--size") -> tuple[int, int]:
     return h, w
 
 
-def bake_task_bytes(frames: int, vertices: int, order: int, transfer_order: int | None = None) -> int:
+def bake_task_bytes(frames: int, vertices: int, order: int, transfer_order: int | None = None,
+                    matrix_order: int | None = None, n_rays: int = 0, subsurface: bool = False) -> int:
     """Estimated in-RAM bytes of one bake task of ``frames`` frames of ``vertices`` vertices.
 
     Per vertex and frame: posed positions and normals in float64 (48 B) and their float32 copies (24 B), the
     vertex frame (9 float32), the visibility (``order**2`` float32) and, with transfer, ``transfer_order**2``
     float32. (On disk the dataset stores ``frames x vertices x (C + 9 + 6) x 4`` bytes over the whole bake;
-    only one task's block is in memory at a time.)
+    only one task's block is in memory at a time.) With transfer matrices (``matrix_order``) or ``subsurface``:
+    ``matrix_order**4`` (and ``transfer_order**2``) float32 more per vertex and frame, plus one frame's ray hits
+    (``n_rays`` x 13 bytes per vertex: triangle, barycentrics, occlusion).
     """
-    per = 48 + 24 + 4 * (9 + order * order + (transfer_order * transfer_order if transfer_order else 0))
-    return int(frames) * int(vertices) * per
+    c6 = transfer_order * transfer_order if transfer_order else 0
+    per = 48 + 24 + 4 * (9 + order * order + c6)
+    per += 4 * (matrix_order**4 if matrix_order else 0) + (4 * c6 if subsurface else 0)
+    hits = 13 * int(n_rays) * int(vertices) if (matrix_order or subsurface) else 0
+    return int(frames) * int(vertices) * per + hits
 
 
 def check_bake_task_memory(frames: int, vertices: int, order: int, transfer_order: int | None = None,
-                           what: str = "bake.frames_per_task") -> int:
+                           what: str = "bake.frames_per_task", matrix_order: int | None = None, n_rays: int = 0,
+                           subsurface: bool = False) -> int:
     """Raise a one-line :class:`PrtError` with the estimate when a bake task exceeds :data:`MAX_TASK_BYTES`."""
-    need = bake_task_bytes(frames, vertices, order, transfer_order)
+    need = bake_task_bytes(frames, vertices, order, transfer_order, matrix_order, n_rays, subsurface)
     if need > MAX_TASK_BYTES:
         raise PrtError(f"{what}: one bake task of {frames} frames x {vertices:,} vertices needs about "
                        f"{human_bytes(need)} of memory, over the {human_bytes(MAX_TASK_BYTES)} bound; "

@@ -4,9 +4,23 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from prt_torch import limits as L
+
+
+class SubsurfaceConfig(BaseModel):
+    """Dipole subsurface material (Jensen et al. 2001; :mod:`prt_torch.bake.subsurface`): coefficients in 1/mm,
+    ``scale`` mm per world unit; defaults: Jensen's skin1, green channel, a character in metres."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    sigma_a: float = Field(default=0.17, gt=0, le=1e4)  # absorption, 1/mm
+    sigma_s_prime: float = Field(default=0.88, gt=0, le=1e4)  # reduced scattering, 1/mm
+    eta: float = Field(default=1.3, ge=1.0, le=3.0)  # relative index of refraction
+    scale: float = Field(default=1000.0, gt=0, le=1e6)  # mm per world unit
+    cutoff: float = Field(default=6.0, gt=0, le=50.0)  # kernel radius in diffusion lengths 1/sigma_tr
+    single: bool = True  # add single scattering to the dipole's multiple scattering
 
 
 class BakeConfig(BaseModel):
@@ -51,6 +65,21 @@ class BakeConfig(BaseModel):
     vertex_chunk_rays: int = Field(default=1 << 20, ge=1024, le=L.MAX_CHUNK_RAYS)
     #: sphere blockers fitted on the rest mesh, shipped by ``prt export`` (SHEXP, seed 003 sec. 7; not a baked number)
     blockers: int = Field(default=48, ge=1, le=1024)
+    #: also bake per-vertex transfer matrices (seed 001; :mod:`prt_torch.bake.transfer_matrix`), local frame rows
+    transfer_matrix: bool = False
+    matrix_order: int = Field(default=4, ge=1, le=8)  # SH order of the transfer matrices (C = order^2)
+    matrix_bounces: int = Field(default=1, ge=0, le=2)  # diffuse interreflection bounces in the matrices
+    #: also bake the subsurface exit-radiance transfer (dipole + single scattering; needs ``transfer``)
+    subsurface: SubsurfaceConfig | None = None
+
+    @model_validator(mode="after")
+    def _matrix_keys(self) -> BakeConfig:
+        if self.subsurface is not None and not self.transfer:
+            raise ValueError("bake.subsurface needs bake.transfer: true (it integrates the irradiance transfer)")
+        if self.subsurface is not None and self.transfer_matrix and self.transfer_order < self.matrix_order:
+            raise ValueError(f"bake.subsurface with transfer matrices needs transfer_order >= matrix_order, got "
+                             f"{self.transfer_order} < {self.matrix_order}")
+        return self
 
     @field_validator("scheduler")
     @classmethod

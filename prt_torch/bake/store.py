@@ -59,13 +59,15 @@ FORMAT_VERSION = 2
 READABLE_FORMATS = (1, 2)
 
 #: per-frame float arrays written by the bake tasks, with their per-frame shapes
-PER_FRAME_RESULTS = ("positions", "normals", "frames", "visibility", "transfer")
+PER_FRAME_RESULTS = ("positions", "normals", "frames", "visibility", "transfer", "transfer_matrix", "subsurface")
 
 #: attrs["bake"] keys that change the baked numbers (compared on resume)
 RESULT_KEYS = ("order", "n_rays", "below_horizon", "transfer", "transfer_order", "bounces", "albedo", "seed",
-               "ray_offset", "cluster_bandwidth", "max_clusters", "min_cluster_size")
+               "ray_offset", "cluster_bandwidth", "max_clusters", "min_cluster_size", "transfer_matrix",
+               "matrix_order", "matrix_bounces", "subsurface")
 #: the value of a result key added after stores were written, for a store that does not record it
-RESULT_KEY_DEFAULTS = {"below_horizon": "zero"}
+RESULT_KEY_DEFAULTS = {"below_horizon": "zero", "transfer_matrix": False, "matrix_order": 4, "matrix_bounces": 1,
+                       "subsurface": None}
 
 #: the visibility convention text of each ``bake.below_horizon``
 VISIBILITY_CONVENTIONS = {

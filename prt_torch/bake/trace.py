@@ -62,13 +62,36 @@ class RaySet:
         return int(self.local.shape[0])
 
 
+@dataclass(frozen=True)
+class RayHits:
+    """The first hit of every bake ray of a frame (``keep_hits=True``), for passes that reuse the same rays
+    (transfer matrices, subsurface). Ray ``r`` of vertex ``v`` is ``rays.local[r]`` turned by ``rays.phi[v]``
+    about the normal and expressed in the world through the frame (:func:`world_directions`).
+
+    Attributes:
+        prim: ``(R, V)`` int32 hit triangle, -1 where the ray escapes.
+        u, v: ``(R, V)`` float32 Embree barycentrics of the hit (hit = ``(1-u-v) p0 + u p1 + v p2``).
+    """
+
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+    @property
+    def occluded(self) -> np.ndarray:
+        """``(R, V)`` bool, True where the ray hits the mesh."""
+        return self.prim != -1
+
+
 @dataclass
 class FrameResult:
-    """``visibility (V, C)`` float32 local frame; ``transfer (V, C6)`` float32 world frame or None."""
+    """``visibility (V, C)`` float32 local frame; ``transfer (V, C6)`` float32 world frame or None;
+    ``hits``: every ray's first hit when traced with ``keep_hits=True``, else None."""
 
     visibility: np.ndarray
     transfer: np.ndarray | None
     n_rays: int
+    hits: RayHits | None = None
 
 
 def trace_frame(
@@ -82,6 +105,7 @@ def trace_frame(
     albedo: float = 0.6,
     max_rays: int = 1 << 20,
     scene: RayScene | None = None,
+    keep_hits: bool = False,
 ) -> FrameResult:
     """Ground-truth visibility (and optionally transfer) of one posed mesh.
 
@@ -98,6 +122,8 @@ def trace_frame(
         max_rays: rays per Embree call (memory bound).
         scene: trace against this scene instead of the mesh ``(positions, faces)``; ``positions``
             are then arbitrary sample points with frames (no bounces: they gather mesh vertices).
+        keep_hits: also return every ray's first hit (:class:`RayHits`; rays are then traced with Embree's
+            intersect, as with bounces, instead of its occlusion query).
     """
     positions = np.asarray(positions)
     frames = np.asarray(frames)
@@ -129,6 +155,10 @@ def trace_frame(
         constant[0] = np.float32(np.sqrt(4.0 * np.pi))  # SH of V = 1 on the whole sphere
     tr = np.empty((V, transfer_order * transfer_order), dtype=np.float32) if transfer_order else None
     entries = []
+    if keep_hits:
+        hit_prim = np.empty((R, V), dtype=np.int32)
+        hit_u = np.empty((R, V), dtype=np.float32)
+        hit_v = np.empty((R, V), dtype=np.float32)
     vb = max(1, max_rays // R)
     for v0 in range(0, V, vb):
         v1 = min(V, v0 + vb)
@@ -136,9 +166,13 @@ def trace_frame(
         dirs = world_directions(rays.local, rotated_frames(f32[v0:v1], rays.phi[v0:v1]))  # (R, n, 3)
         origins = np.empty((R, n, 3), dtype=np.float32)
         origins[:] = origins_all[v0:v1]
-        if bounces:
+        if bounces or keep_hits:
             hits = scene.intersect(origins.reshape(-1, 3), dirs.reshape(-1, 3))
             occluded = hits.prim != -1
+            if keep_hits:
+                hit_prim[:, v0:v1] = hits.prim.reshape(R, n)
+                hit_u[:, v0:v1] = hits.u.reshape(R, n)
+                hit_v[:, v0:v1] = hits.v.reshape(R, n)
         else:
             occluded = scene.occluded(origins.reshape(-1, 3), dirs.reshape(-1, 3))
         visible = np.logical_not(occluded).reshape(R, n).astype(np.float32)
@@ -156,4 +190,5 @@ def trace_frame(
                                           np.asarray(faces), R, albedo))
     if tr is not None and bounces:
         tr = interreflect(tr, bounce_operator(entries, V), bounces)
-    return FrameResult(visibility=vis, transfer=tr, n_rays=V * R)
+    kept = RayHits(prim=hit_prim, u=hit_u, v=hit_v) if keep_hits else None
+    return FrameResult(visibility=vis, transfer=tr, n_rays=V * R, hits=kept)
