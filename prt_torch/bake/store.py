@@ -41,6 +41,8 @@ import os
 import shutil
 import sys
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -176,17 +178,10 @@ def create_store(path: Path, arrays: dict[str, np.ndarray], per_frame: dict[str,
         frames_per_task: chunk length along the frame axis.
         attrs: group attributes (JSON-serialisable; ``format_version`` says the layout).
     """
-    import zarr
-
     if path.exists():
         raise PrtError(f"dataset already exists: {path}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a creation that was killed
-        shutil.rmtree(stale, ignore_errors=True)
-    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     codecs = _codecs() if int(attrs.get("format_version", FORMAT_VERSION)) >= 2 else {}
-    try:
-        g = zarr.open_group(str(tmp), mode="w-", zarr_format=3)
+    with new_store(path, "this bake", "run `prt bake` again to resume it") as g:
         for name, (shape, dtype) in per_frame.items():
             g.create_array(name, shape=(n_frames, *shape), chunks=(frames_per_task, *shape), dtype=dtype,
                            fill_value=0, **codecs)
@@ -199,11 +194,28 @@ def create_store(path: Path, arrays: dict[str, np.ndarray], per_frame: dict[str,
                 chunks = a.shape if a.size else tuple(max(1, s) for s in a.shape)
             g.create_array(name, data=a, chunks=chunks, **codecs)
         g.attrs.update(attrs)
+
+
+@contextmanager
+def new_store(path: Path, who: str, retry: str) -> Iterator[Any]:
+    """Create a zarr v3 group atomically: yield a group in a temporary sibling directory (stale siblings left by a
+    killed creation are removed first), then rename it to ``path`` with a rename that replaces nothing; on any
+    error the temporary directory is removed. ``who``/``retry`` word the one-line error when ``path`` appeared
+    meanwhile (e.g. ``"this bake"``, ``"run `prt bake` again to resume it"``). The caller holds the run
+    directory's lock (only the holder removes stale temporaries). Used by the bake's dataset and the cloth's
+    vertex cache."""
+    import zarr
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a creation that was killed
+        shutil.rmtree(stale, ignore_errors=True)
+    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    try:
+        yield zarr.open_group(str(tmp), mode="w-", zarr_format=3)
         try:
             _rename_noreplace(tmp, path)
         except FileExistsError:
-            raise PrtError(f"{path} appeared while this bake was creating it (another bake?); "
-                           "nothing overwritten: run `prt bake` again to resume it") from None
+            raise PrtError(f"{path} appeared while {who} was creating it; nothing overwritten: {retry}") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

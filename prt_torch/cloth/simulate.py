@@ -18,8 +18,6 @@ one thread is deterministic: the same config gives bit-identical caches.
 
 from __future__ import annotations
 
-import shutil
-import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -174,18 +172,12 @@ def simulate_sequence(subject: ClothSubject, name: str, engine: Engine | None = 
 
 # -- the store -----------------------------------------------------------------------------------------
 def _create_store(path: Path, subject: ClothSubject, attrs: dict[str, Any]) -> None:
-    """Create the complete store atomically (temporary sibling, then a rename that replaces nothing)."""
-    import zarr
+    """Create the complete store atomically (:func:`prt_torch.bake.store.new_store`: a temporary sibling, then a
+    rename that replaces nothing)."""
+    from prt_torch.bake.store import _codecs, new_store
 
-    from prt_torch.bake.store import _codecs, _rename_noreplace
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    for stale in path.parent.glob(f".{path.name}.tmp-*"):
-        shutil.rmtree(stale, ignore_errors=True)
-    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     codecs = _codecs()
-    try:
-        g = zarr.open_group(str(tmp), mode="w-", zarr_format=3)
+    with new_store(path, "this simulation", "run it again to resume") as g:
         names = subject.all_sequences()
         for name in names:
             key = attrs["keys"][name]
@@ -199,14 +191,6 @@ def _create_store(path: Path, subject: ClothSubject, attrs: dict[str, Any]) -> N
                                **codecs)
         g.create_array("done", shape=(len(names),), chunks=(1,), dtype=bool, fill_value=False, **codecs)
         g.attrs.update(attrs)
-        try:
-            _rename_noreplace(tmp, path)
-        except FileExistsError:
-            raise PrtError(f"{path} appeared while this simulation was creating it (another `prt simulate`?); "
-                           "nothing overwritten: run it again to resume") from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def open_store(cfg: RunConfig, subject: ClothSubject, path: Path) -> Any:
