@@ -60,16 +60,22 @@ GRAPHS = ("visibility", "shading", "fused")
 
 _DATASET = "dataset.zarr"
 _CHARACTER = "character.npz"
+_SIMULATION = "simulation.zarr"  # a cloth run's vertex cache (prt_torch.cloth.simulate)
 _MODELS = "models"
 _DEFAULT_MODEL = "model.pt"
 _MODEL_JSON = "model.json"
 _METRICS_JSON = "metrics.json"
+_TRANSFER_JSON = "transfer.json"  # learned transfer (seed 000): metadata + sha256 of models/<array>_<kind>.pt
 _REPORT = "report"
 _RESULTS_JSON = "results.json"
 _EXPORT_JSON = "export.json"
 _FRAMES = "frames.npz"
 _BLOCKERS = "blockers.npz"
 _SHEXP_ONNX = "shexp.onnx"
+_S001 = "s001.npz"
+_DEFORM = "deform.npz"  # a deformable run's frame operator + cloth edges (prt_torch.export.deformable)
+_POSITIONS_ONNX = "positions.onnx"  # a deformable run's positions-in visibility graph
+_POSITIONS_FUSED_ONNX = "positions_fused.onnx"  # a deformable run's positions-in radiance graph (cluster order)
 _RPO = "rpo"
 _MATERIAL_RPO = "material"  # rpo/material-<key>.npz: the character material's RPO (player cache)
 _COMPARE = "compare"
@@ -183,6 +189,11 @@ class RunDir:
         """``character.npz``: the baked character."""
         return self.path / _CHARACTER
 
+    @property
+    def simulation(self) -> Path:
+        """``simulation.zarr/``: a cloth run's vertex cache (``prt simulate``, :mod:`prt_torch.cloth.simulate`)."""
+        return self.path / _SIMULATION
+
     def dataset(self) -> BakedDataset:
         """The baked dataset (:class:`prt_torch.bake.store.BakedDataset`, the only dataset reader)."""
         from prt_torch.bake.store import BakedDataset
@@ -223,6 +234,24 @@ class RunDir:
     @property
     def metrics_json(self) -> Path:
         return self.path / _METRICS_JSON
+
+    def transfer_model_path(self, kind: str, array: str = "transfer") -> Path:
+        """``models/<array>_<kind>.pt``: a learned transfer model (``array``: ``transfer`` or ``subsurface``)."""
+        check(array.isidentifier() and kind.isidentifier(), f"bad transfer model {array!r} / {kind!r}")
+        return self.models_dir / f"{array}_{kind}.pt"
+
+    @property
+    def transfer_json(self) -> Path:
+        return self.path / _TRANSFER_JSON
+
+    def transfer_meta(self) -> dict[str, Any]:
+        """``transfer.json`` (written by ``prt train`` with ``train.transfer``), every model file it lists verified."""
+        path = self.transfer_json
+        if not path.is_file():
+            raise PrtError(f"no learned transfer in {self.path} (train with a `train.transfer` section)")
+        meta = self._read_unit(path, "train")
+        self._verify_files(path, "train", meta.get("files"), [])
+        return meta
 
     def model(self, kind: str | None = None) -> VisibilityModel:
         """The trained model of ``kind`` (``None``: the default one). Needs torch."""
@@ -310,9 +339,29 @@ class RunDir:
         return self.path / _BLOCKERS
 
     @property
+    def s001(self) -> Path:
+        """``s001.npz``: seed 001's compressed transfer matrices (``prt train`` with ``train.s001``)."""
+        return self.path / _S001
+
+    @property
     def shexp_path(self) -> Path:
         """``shexp.onnx``: the SHEXP sphere-blocker visibility graph (:mod:`prt_torch.export.shexp_graph`)."""
         return self.path / _SHEXP_ONNX
+
+    @property
+    def deform_path(self) -> Path:
+        """``deform.npz``: a deformable run's frame operator, cloth edges and layout (``prt export``)."""
+        return self.path / _DEFORM
+
+    @property
+    def positions_graph_path(self) -> Path:
+        """``positions.onnx``: a deformable run's ``positions (B, V, 3) -> visibility`` graph (``prt export``)."""
+        return self.path / _POSITIONS_ONNX
+
+    @property
+    def positions_fused_path(self) -> Path:
+        """``positions_fused.onnx``: a deformable run's ``positions -> radiance`` graph (``prt export``)."""
+        return self.path / _POSITIONS_FUSED_ONNX
 
     def graph_path(self, graph: str) -> Path:
         """``<graph>.onnx`` for ``graph`` in :data:`GRAPHS`."""

@@ -10,7 +10,7 @@ import argparse
 
 HELP = "Benchmarks (bake, fit, play, shade, heightfield): our path vs the raw limit or the naive way, in one run."
 
-BENCHES = ("bake", "fit", "play", "shade", "heightfield", "scene", "sglight", "sg", "shexp")
+BENCHES = ("bake", "fit", "play", "shade", "heightfield", "scene", "sglight", "sg", "shexp", "cloth", "s001")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -12,6 +12,8 @@ HELP = "Play a clip of an exported run with onnxruntime: offscreen MP4/PNG frame
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", help="exported run directory (runs/NAME)")
     parser.add_argument("--clip", default=None, help="clip name of the character (e.g. walk)")
+    parser.add_argument("--sequence", default=None, help="a deformable (cloth) run: the sequence of its vertex cache "
+                                                         "to play (prt_torch.player.deformable)")
     parser.add_argument("--motion", default=None, help="a motion file (.bvh, or a humanoid .glb/.gltf) retargeted "
                                                        "onto the run's character, instead of --clip")
     parser.add_argument("--motion-fps", type=float, default=None,
@@ -37,9 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
                                                         "a timings file in RUN)")
     parser.add_argument("--light-angle", type=float, default=0.0, help="rotate the lighting about z (degrees)")
-    parser.add_argument("--renderer", default="onnx", choices=["onnx", "sg"],
+    parser.add_argument("--renderer", default="onnx", choices=["onnx", "sg", "s001", "posespace"],
                         help="onnx: the run's learned models; sg: SG lighting + voxel cone-traced visibility of each "
-                             "posed frame (seed 004; needs torch and healpy)")
+                             "posed frame (seed 004; needs torch and healpy); s001 / posespace: the run's compressed "
+                             "transfer matrices (seed 001, train.s001) interpolated per segment / globally")
     parser.add_argument("--vct-resolution", type=int, default=128, help="--renderer sg: voxel grid side (64-256)")
     parser.add_argument("--ground", action="store_true", help="a floor under the character(s), with cast shadows "
                                                               "(prt_torch.player.scene)")
@@ -65,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
         raise PrtError(f"--light-angle must be a finite number of degrees, got {args.light_angle}")
     if args.clip is not None and args.motion is not None:
         raise PrtError("give --clip NAME or --motion FILE, not both")
-    if args.clip is None and args.motion is None and getattr(args, "scene", None) is None:
+    if args.clip is None and args.motion is None and getattr(args, "scene", None) is None \
+            and getattr(args, "sequence", None) is None:
         raise PrtError("give exactly one of --clip NAME or --motion FILE")  # a --scene file may name its clips
     if args.clip is not None and not args.clip.strip():
         raise PrtError("--clip: empty clip name")
@@ -84,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
         V.output_dir(args.png, "--png")
     if args.timings is not None:
         V.output_file(args.timings, "--timings")
+    if getattr(args, "sequence", None) is not None:
+        return _play_sequence(args, h, w)
 
     if args.ground or args.scene is not None:
         return _play_scene(args, h, w)
@@ -108,6 +114,10 @@ def run(args: argparse.Namespace) -> int:
         limits.check_int(args.vct_resolution, "--vct-resolution", 16, 512)
         player = SGPlayer(args.run, env=args.env, brdf=args.brdf, threads=args.threads, window_size=(h, w),
                           resolution=args.vct_resolution, device=args.device)
+    elif args.renderer in ("s001", "posespace"):
+        from prt_torch.player.s001_renderer import S001RunPlayer
+
+        player = S001RunPlayer(args.run, env=args.env, brdf=args.brdf, scheme=args.renderer, window_size=(h, w))
     else:
         player = Player(args.run, env=args.env, brdf=args.brdf, graph=args.graph, threads=args.threads,
                         window_size=(h, w), device=args.device)
@@ -129,6 +139,51 @@ def run(args: argparse.Namespace) -> int:
     s = res.summary
     console.print(f"{res.frames} frames: compute path {s.get('compute_fps', 0):.0f} frames/s "
                   f"({s.get('compute_ms_median', 0):.2f} ms), with rendering {s.get('total_fps', 0):.1f} frames/s")
+    for p in res.outputs:
+        console.print(f"wrote {p}")
+    return 0
+
+
+def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
+    """``--sequence NAME``: a cached sequence of a deformable run
+    (:class:`~prt_torch.player.deformable.DeformablePlayer`, graph ``split`` or ``overlap``)."""
+    import numpy as np
+    from rich.console import Console
+
+    from prt_torch.errors import PrtError
+    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.player.render import has_display
+    from prt_torch.rundir import RunDir
+
+    for flag, value in (("--clip", args.clip), ("--motion", args.motion), ("--scene", args.scene)):
+        if value is not None:
+            raise PrtError(f"give --sequence NAME or {flag}, not both")
+    if args.ground or args.renderer != "onnx":
+        raise PrtError("--sequence plays the run's learned models (--renderer onnx) without --ground")
+    if not args.sequence.strip():
+        raise PrtError("--sequence: empty sequence name")
+    show = args.out is None and args.png is None
+    if show and not has_display():
+        raise PrtError("no display: pass --out video.mp4 or --png DIR to render offscreen")
+    run = RunDir(args.run)
+    timings = args.timings or (run.timings_path(args.out) if args.out else run.play_timings)
+    # a deformable run plays split (positions graph + shading graph: measured faster than its fused graph, whose
+    # cluster order costs a permutation in and out) unless --graph overlap; fused is DeformablePlayer(graph="fused")
+    graph = "split" if args.graph == "fused" else args.graph
+    console = Console(stderr=True)
+    player = DeformablePlayer(args.run, env=args.env, brdf=args.brdf, graph=graph, threads=args.threads,
+                              window_size=(h, w), device=args.device)
+    try:
+        if args.light_angle:
+            player.rotate_light(np.radians(args.light_angle))
+        res = player.play(args.sequence, out=args.out, png_dir=args.png, max_frames=args.max_frames, fps=args.fps,
+                          timings=timings, show=show)
+    finally:
+        player.close()
+    s = res.summary
+    console.print(f"{res.frames} frames of {args.sequence!r}: compute path {s.get('compute_fps', 0):.0f} frames/s "
+                  f"({s.get('compute_ms_median', 0):.2f} ms: frames + positions graph + shading), with rendering "
+                  f"{s.get('total_fps', 0):.1f} frames/s")
     for p in res.outputs:
         console.print(f"wrote {p}")
     return 0

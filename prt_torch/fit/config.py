@@ -12,6 +12,61 @@ from prt_torch import limits as L
 KINDS: tuple[str, ...] = ("linear", "quadratic", "mlp")
 
 
+class TransferConfig(BaseModel):
+    """``train.transfer``: learned diffuse transfer (seed 000; :mod:`prt_torch.fit.transfer`). The ``kinds`` are fitted
+    to the baked global-frame ``transfer`` (and ``subsurface`` when baked) vectors with the train section's grids:
+    input PCA of the poses (``input_components``, else ``input_variance``), output PCA ``global`` (seed 000 sec. 5:
+    one basis over the per-coefficient vertex vectors; Table 1's PCA(8, 22) = 8 inputs, 22 outputs) or per
+    ``cluster`` (``output_components`` per cluster, else ``output_variance``); ``alpha``: one fixed ridge alpha
+    (None: chosen by the blocked CV over ``train.alphas``)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    kinds: list[str] = Field(default_factory=lambda: ["linear"], max_length=len(KINDS))
+    input_components: int | None = Field(default=8, ge=1, le=L.MAX_NEURONS)
+    output_components: int | None = Field(default=22, ge=1, le=L.MAX_NEURONS)
+    input_variance: float = Field(default=0.90, gt=0, le=1)
+    output_variance: float = Field(default=0.95, gt=0, le=1)
+    output_pca: Literal["global", "cluster"] = "global"
+    alpha: float | None = Field(default=None, ge=0, le=L.MAX_ALPHA)
+
+    @field_validator("kinds")
+    @classmethod
+    def _kinds(cls, v: list[str]) -> list[str]:
+        bad = [k for k in v if k not in KINDS]
+        if bad or not v or len(set(v)) != len(v):
+            raise ValueError(f"transfer kinds must be distinct kinds of {', '.join(KINDS)}, got {v}")
+        return v
+
+
+class S001Config(BaseModel):
+    """``train.s001``: seed 001's compressed transfer matrices (:mod:`prt_torch.fit.s001`). Segments = the skinning
+    clusters; per segment the poses of ``clip`` are grouped by recursive normalized cut into groups of
+    ``leaf_size`` (eq. 3 with ``t_scale`` / ``p_scale``); CPCA with ``n_basis`` basis matrices per cluster,
+    ``clusters_per_segment`` clusters per segment, ``cpca_iters`` reassignment rounds; 16-bit coefficients.
+    ``other_bone_weight``: eq. 6 weight of bones that do not skin a segment; ``rbf_scale``: NRBF width / nearest
+    distance; ``memory_mb``: the stage's budget for transfer data held at once (it streams the store)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    clip: str = Field(default="random", min_length=1, max_length=L.MAX_STRING_LENGTH)
+    leaf_size: int = Field(default=4, ge=2, le=64)
+    t_scale: float = Field(default=1.0, gt=0, le=1e6)
+    p_scale: float = Field(default=2.0, gt=0, le=1e6)
+    n_basis: int = Field(default=8, ge=1, le=64)
+    # "segment": row-constrained CPCA per segment (clusters_per_segment clusters, cpca_iters rounds; the default:
+    # measured 0.12 train error with 76 clusters vs 0.62 with 265 for "revised" on the same small store);
+    # "revised": sec. 4's incremental revised CPCA (prt_torch.reduce.rcpca, per-pose budget m_cpf clusters)
+    cpca: Literal["revised", "segment"] = "segment"
+    m_cpf: int = Field(default=64, ge=1, le=1 << 16)
+    clusters_per_segment: int = Field(default=8, ge=1, le=4096)
+    cpca_iters: int = Field(default=3, ge=0, le=100)
+    other_bone_weight: float = Field(default=0.0, ge=0, le=1)  # eq. 6 weight of bones not skinning the segment
+    rbf_scale: float = Field(default=1.0, gt=0, le=100)
+    memory_mb: int = Field(default=1024, ge=16, le=1 << 20)
+    seed: int = Field(default=0, ge=0, le=L.MAX_SEED)
+
+
 class TrainConfig(BaseModel):
     """Reduction and regression settings.
 
@@ -55,6 +110,8 @@ class TrainConfig(BaseModel):
     threads: int = Field(default=1, ge=0, le=L.MAX_THREADS)
     dataset: str | None = Field(default=None, min_length=1, max_length=L.MAX_STRING_LENGTH)
     eval_frames: int | None = Field(default=None, ge=2, le=L.MAX_FRAMES)  # cap on frames per split in metrics.json
+    transfer: TransferConfig | None = None  # learned diffuse transfer (seed 000), prt_torch.fit.transfer
+    s001: S001Config | None = None  # seed 001 compressed transfer matrices, prt_torch.fit.s001
 
     @field_validator("kinds")
     @classmethod

@@ -350,6 +350,10 @@ def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
     fit agrees with it only to rounding, so it is keyed apart (``cuda`` without a GPU: one-line PrtError)."""
     settings = cfg.model_dump(mode="json")
     settings.pop("device")
+    if settings.get("transfer") is None:  # keys of runs trained before train.transfer existed stay valid
+        settings.pop("transfer", None)
+    if settings.get("s001") is None:  # likewise train.s001 (seed 001 compressed transfer matrices)
+        settings.pop("s001", None)
     device = resolve_device(cfg.device)
     if device != "cpu":
         settings["device"] = device
@@ -380,18 +384,23 @@ def train_dataset(dataset: str | Path | BakedDataset, run_dir: str | Path | RunD
         torch.set_num_threads(threads)
 
 
+def cv_train_only(ds: BakedDataset, train: SplitData, cfg: TrainConfig) -> np.ndarray | None:
+    """``(F,)`` training frames never validated on (``cv_validate: clips``: the random poses), else None."""
+    if cfg.cv_validate != "clips":
+        return None
+    from prt_torch.bake.plan import RANDOM_CLIP
+
+    random_ids = [i for i, n in enumerate(ds.clip_names) if n == RANDOM_CLIP]
+    return np.isin(train.clip_id, random_ids)
+
+
 def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
     train = ds.split("train")
     check(train.n_frames >= 2 * cfg.folds, f"{ds.path}: only {train.n_frames} training frames for {cfg.folds} folds")
     # the stage's files; model.json (written last, with their sha256) commits them (see unit_files)
     run.begin("train", (*unit_files(run, cfg.kinds), run.model_json))
     skinning = load_skinning(ds) if cfg.input_selection == "joints" else None
-    train_only = None
-    if cfg.cv_validate == "clips":
-        from prt_torch.bake.plan import RANDOM_CLIP
-
-        random_ids = [i for i, n in enumerate(ds.clip_names) if n == RANDOM_CLIP]
-        train_only = np.isin(train.clip_id, random_ids)
+    train_only = cv_train_only(ds, train, cfg)
     red = reduce_training(train, ds.cluster, cfg, skinning, train_only)
     _log(progress, f"input PCA: {ds.n_features} -> {red.inp.n_components} dims ({red.inp.retained:.3f} variance); "
                    f"output PCA: {red.out.n_groups} clusters, dims {red.out.dims.min()}..{red.out.width}")
@@ -415,6 +424,17 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     for name, sp in splits.items():
         metrics.setdefault("pca_floor", {})[name] = vis_rel_err(red.out.expand(red.out.reduce(sp.visibility)),
                                                                sp.visibility)
+    from prt_torch.fit.transfer import train_transfer  # seed 000 learned transfer (train.transfer; else removed)
+
+    transfer = train_transfer(ds, run, cfg, progress)
+    if transfer is not None:
+        metrics["transfer"] = transfer
+    from prt_torch.fit.s001 import train_s001  # seed 001 compressed transfer matrices (train.s001; else removed)
+
+    s001 = train_s001(ds, run, cfg, progress)
+    if s001 is not None:
+        metrics["s001"] = {k: s001[k] for k in ("compression_ratio", "raw_bytes", "stored_bytes", "n_clusters",
+                                                "train_rel_err_unquantised", "seconds")}
     atomic_write_json(run.metrics_json, metrics)
     meta["files"] = run.unit_hashes(unit_files(run, list(fits)))
     atomic_write_json(run.model_json, meta)  # the commit record: written last

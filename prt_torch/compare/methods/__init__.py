@@ -218,3 +218,5 @@ from prt_torch.compare.methods import unshadowed as _unshadowed  # noqa: E402,F4
 from prt_torch.compare.methods import learned as _learned  # noqa: E402,F401
 from prt_torch.compare.methods import sg_vct as _sg_vct  # noqa: E402,F401
 from prt_torch.compare.methods import shexp as _shexp  # noqa: E402,F401
+from prt_torch.compare.methods import learned_transfer as _learned_transfer  # noqa: E402,F401
+from prt_torch.compare.methods import s001 as _s001  # noqa: E402,F401
