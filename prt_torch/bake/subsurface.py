@@ -47,13 +47,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from prt_torch.bake.directions import rotated_frames, world_directions
 from prt_torch.bake.trace import RayHits, RaySet
-from prt_torch.bake.transfer import direct_transfer
+from prt_torch.bake.transfer import occlusion_transfer
 from prt_torch.errors import PrtError, check
-
-#: rays per SH evaluation block (bounds the (rays, Vb, 3) temporaries)
-_SUB_RAYS = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -209,14 +205,7 @@ def single_scatter_transfer(frames: np.ndarray, rays: RaySet, occluded: np.ndarr
     R = rays.n_rays
     check(occluded.shape == (R, V), f"ray occlusion must have shape ({R}, {V}), got {occluded.shape}")
     weight = (math.pi * single_scatter_weight(rays.cos, p)).astype(np.float32)  # direct_transfer scales by 2/R
-    f32 = frames.astype(np.float32, copy=False)
-    out = np.empty((V, order * order), dtype=np.float32)
-    vb = max(1, _SUB_RAYS // R)
-    for v0 in range(0, V, vb):
-        v1 = min(V, v0 + vb)
-        dirs = world_directions(rays.local, rotated_frames(f32[v0:v1], rays.phi[v0:v1]))
-        out[v0:v1] = direct_transfer(np.logical_not(occluded[:, v0:v1]).astype(np.float32), weight, dirs, order)
-    return out
+    return occlusion_transfer(frames, rays.local, rays.phi, occluded, weight, order)
 
 
 def subsurface_transfer(positions: np.ndarray, areas: np.ndarray, irradiance_transfer: np.ndarray,

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from prt_torch.bake.directions import rotated_frames, world_directions
 from prt_torch.sh.basis import sh_basis
 
 #: rays per SH evaluation block in :func:`direct_transfer` (bounds the (rays, C) temporary)
@@ -50,6 +51,27 @@ def direct_transfer(visible: np.ndarray, cos_local: np.ndarray, world_dirs: np.n
         v1 = min(V, v0 + vb)
         Y = sh_basis(world_dirs[:, v0:v1], order, check=False)  # (R, Vb, C)
         out[v0:v1] = np.einsum("rv,rvc->vc", w[:, v0:v1], Y, optimize=True)
+    return out
+
+
+def occlusion_transfer(frames: np.ndarray, local_dirs: np.ndarray, phi: np.ndarray, occluded: np.ndarray,
+                       cos_weight: np.ndarray, order: int) -> np.ndarray:
+    """:func:`direct_transfer` of a whole frame from its stored ray occlusion (the bake's hits, kept after tracing).
+
+    The world directions are re-formed from the vertex frames block by block (the bake's rays:
+    ``local_dirs (R, 3)`` hemisphere directions, each vertex's rotation ``phi (V,)`` about its normal), so no
+    ``(R, V, 3)`` array of the whole frame is built. ``frames (V, 3, 3)``, ``occluded (R, V)`` bool,
+    ``cos_weight (R,)`` the per-ray weight :func:`direct_transfer` takes as ``cos_local``. Returns ``(V, C)`` float32.
+    """
+    V = frames.shape[0]
+    R = occluded.shape[0]
+    f32 = np.asarray(frames).astype(np.float32, copy=False)
+    out = np.empty((V, order * order), dtype=np.float32)
+    vb = max(1, _SUB_RAYS // max(R, 1))
+    for v0 in range(0, V, vb):
+        v1 = min(V, v0 + vb)
+        dirs = world_directions(local_dirs, rotated_frames(f32[v0:v1], phi[v0:v1]))
+        out[v0:v1] = direct_transfer(np.logical_not(occluded[:, v0:v1]).astype(np.float32), cos_weight, dirs, order)
     return out
 
 

@@ -44,7 +44,7 @@ import numpy as np
 
 from prt_torch.bake.directions import hemisphere_set, rotated_frames, world_directions
 from prt_torch.bake.trace import FrameResult, RayHits, RaySet, check_below_horizon
-from prt_torch.bake.transfer import bounce_operator, direct_transfer, gather_entries, interreflect
+from prt_torch.bake.transfer import bounce_operator, gather_entries, interreflect, occlusion_transfer
 from prt_torch.bake.visibility import projection_table, rotate_sh_z
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import check_order, sh_basis
@@ -107,14 +107,8 @@ def hit_diffuse_transfer(frames: np.ndarray, hits: RayHits, rays: RaySet, faces:
     """
     V = frames.shape[0]
     R = rays.n_rays
-    f32 = frames.astype(np.float32, copy=False)
     occ = hits.occluded
-    t0 = np.empty((V, order * order), dtype=np.float32)
-    vb = max(1, _SUB_RAYS // R)
-    for v0 in range(0, V, vb):
-        v1 = min(V, v0 + vb)
-        dirs = world_directions(rays.local, rotated_frames(f32[v0:v1], rays.phi[v0:v1]))
-        t0[v0:v1] = direct_transfer(np.logical_not(occ[:, v0:v1]).astype(np.float32), rays.cos, dirs, order)
+    t0 = occlusion_transfer(frames, rays.local, rays.phi, occ, rays.cos, order)
     if not bounces:
         return t0
     idx = np.flatnonzero(occ)  # ray-major over (R, V)
