@@ -9,8 +9,8 @@ body's pose features for the cape) and whose vertex frames come from
   (:meth:`FrameOperator.arrays`, keys prefixed ``op_``), the cloth's interior ``edges (E, 4)`` in subject vertex
   indices, ``cloth_slice (2,)`` (start, stop) and ``n_body_features ()`` (0: no body input);
 * the positions-in graph (``RunDir.positions_graph_path``): ``positions (B, V, 3)`` [, ``body (B, Ab)``] ->
-  dihedral angles (:func:`dihedral_module`, the rule of
-  :func:`prt_torch.deform.dihedral.dihedral_angles`) [concatenated with ``body``] -> the
+  dihedral angles (:func:`position_features_module`, the rule of
+  :func:`prt_torch.cloth.inputs.cloth_features`) [concatenated with ``body``] -> the
   model -> ``visibility (B, V, C)`` (original vertex order, the export's precision), checked against torch
   (parity, relative error per precision) and against the dataset: the numpy rule ``cloth_features`` on the held-out
   positions must give the dataset's ``pose`` column, and the frame operator the dataset's baked ``frames``.
@@ -110,29 +110,37 @@ def frame_operator(run: RunDir) -> Any:
 
 
 # -- the positions-in graph -----------------------------------------------------------------------------------
-def dihedral_module(edges: np.ndarray) -> torch.nn.Module:
-    """``positions (B, V, 3)`` -> ``(B, E)`` signed dihedral angles: the torch twin of the numpy rule
-    (:class:`prt_torch.deform.dihedral_torch.DihedralAngles`, laid out for a fast ONNX graph)."""
+def position_features_module(edges: np.ndarray, n_body_features: int) -> torch.nn.Module:
+    """``positions (B, V, 3)`` [, ``body (B, Ab)``] -> ``(B, E [+ Ab])``: the torch twin of the numpy input rule
+    :func:`prt_torch.cloth.inputs.cloth_features` (the dihedral angles,
+    :class:`prt_torch.deform.dihedral_torch.DihedralAngles`, then the body features appended)."""
+    import torch
+
     from prt_torch.deform.dihedral_torch import DihedralAngles
 
-    return DihedralAngles(np.asarray(edges)).eval()
+    class PositionFeatures(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.dihedral = DihedralAngles(np.asarray(edges))
+            self.n_body = int(n_body_features)
+
+        def forward(self, positions: torch.Tensor, body: torch.Tensor | None = None) -> torch.Tensor:
+            f = self.dihedral(positions)
+            return f if body is None else torch.cat([f, body], dim=-1)
+
+    return PositionFeatures().eval()
 
 
 def positions_graph_module(vis_graph: Any, edges: np.ndarray, n_body_features: int) -> torch.nn.Module:
-    """``positions (B, V, 3)`` [, ``body (B, Ab)``] -> ``visibility (B, V, C)``: the dihedral angles
-    (:func:`dihedral_module`) [+ body features] fed to ``vis_graph`` (a :class:`VisibilityGraph`)."""
+    """``positions (B, V, 3)`` [, ``body (B, Ab)``] -> ``visibility (B, V, C)``: the input features
+    (:func:`position_features_module`) fed to ``vis_graph`` (a :class:`VisibilityGraph`)."""
     import torch
 
     class PositionsGraph(torch.nn.Module):
         def __init__(self) -> None:
             super().__init__()
-            self.dihedral = dihedral_module(edges)
+            self.features = position_features_module(edges, n_body_features)
             self.vis = vis_graph
-            self.n_body = int(n_body_features)
-
-        def features(self, positions: torch.Tensor, body: torch.Tensor | None = None) -> torch.Tensor:
-            f = self.dihedral(positions)
-            return f if body is None else torch.cat([f, body], dim=-1)
 
         def forward(self, positions: torch.Tensor, body: torch.Tensor | None = None) -> torch.Tensor:
             return self.vis(self.features(positions, body))
@@ -143,22 +151,22 @@ def positions_graph_module(vis_graph: Any, edges: np.ndarray, n_body_features: i
 def positions_fused_module(fused_graph: Any, edges: np.ndarray, n_body_features: int) -> torch.nn.Module:
     """``positions (B, V, 3)`` [, ``body``], then the shading inputs of
     :data:`prt_torch.export.graphs.FUSED_INPUTS` (frames, view dirs in ``fused_graph``'s vertex order, lobes, RPO)
-    -> ``radiance (B, V, 3)`` (that order): the dihedral angles [+ body] fed to ``fused_graph``
-    (a :class:`~prt_torch.export.graphs.FusedGraph`, cluster-sorted like the skinned export's fused graph)."""
+    -> ``radiance (B, V, 3)`` (that order): the input features (:func:`position_features_module`) fed to
+    ``fused_graph`` (a :class:`~prt_torch.export.graphs.FusedGraph`, cluster-sorted like the skinned export's fused
+    graph)."""
     import torch
 
     class PositionsFused(torch.nn.Module):
         def __init__(self) -> None:
             super().__init__()
-            self.dihedral = dihedral_module(edges)
+            self.features = position_features_module(edges, n_body_features)
             self.fused = fused_graph
             self.n_body = int(n_body_features)
 
         def forward(self, positions: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
-            f = self.dihedral(positions)
             if self.n_body:
-                f, rest = torch.cat([f, rest[0]], dim=-1), rest[1:]
-            return self.fused(f, *rest)
+                return self.fused(self.features(positions, rest[0]), *rest[1:])
+            return self.fused(self.features(positions), *rest)
 
     return PositionsFused().eval()
 

@@ -52,7 +52,7 @@ def test_vertex_last_dihedral_graph_is_the_numpy_rule() -> None:
 
     from prt_torch.deform.dihedral import dihedral_angles
     from prt_torch.deform.mesh import interior_edges
-    from prt_torch.export.deformable import dihedral_module
+    from prt_torch.export.deformable import position_features_module
 
     rest, faces = flag_mesh(9, 7)
     edges = interior_edges(faces)
@@ -64,7 +64,7 @@ def test_vertex_last_dihedral_graph_is_the_numpy_rule() -> None:
     ref = dihedral_angles(pos.astype(np.float64), edges)
     assert np.abs(ref).max() > 2.5  # sharp folds are part of the check
     with torch.no_grad():
-        got = dihedral_module(edges)(torch.from_numpy(pos)).numpy()
+        got = position_features_module(edges, 0)(torch.from_numpy(pos)).numpy()
     wrapped = np.angle(np.exp(1j * (got - ref)))  # +-pi are the same fold
     assert np.abs(wrapped).max() < 1e-4
 
