@@ -7,8 +7,12 @@ Every check raises a one-line :class:`~prt_torch.errors.PrtError` naming the opt
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from prt_torch.errors import PrtError
+
+if TYPE_CHECKING:
+    from prt_torch.config import RunConfig
 
 
 def _show(path: str | Path) -> str:
@@ -84,6 +88,18 @@ def run_dir(path: str | Path, option: str) -> Path:
     from prt_torch.config import check_run_dir
 
     return check_run_dir(path, option)
+
+
+def run_config(config: str | Path, run_dir_option: str | None) -> RunConfig:
+    """The config file ``config``, its run directory replaced by ``--run-dir`` when given (checked first)."""
+    from prt_torch.config import load_config
+
+    if run_dir_option is not None:
+        run_dir(run_dir_option, "--run-dir")
+    cfg = load_config(config)
+    if run_dir_option:
+        cfg.run_dir = Path(run_dir_option)
+    return cfg
 
 
 def names(text: str, option: str, allowed: tuple[str, ...] | list[str] | None = None, what: str = "name") -> list[str]:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 HELP = "Bake ground-truth SH visibility (Embree) into the dataset of runs/NAME; re-running resumes."
 
@@ -27,7 +26,6 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch import limits
     from prt_torch.bake.runner import run_bake
     from prt_torch.commands import _validate as V
-    from prt_torch.config import load_config
     from prt_torch.errors import PrtError
 
     if args.workers is not None:
@@ -37,11 +35,7 @@ def run(args: argparse.Namespace) -> int:
             limits.check_scheduler(args.scheduler)
         except ValueError as exc:
             raise PrtError(f"--scheduler: {exc}") from None
-    if args.run_dir is not None:
-        V.run_dir(args.run_dir, "--run-dir")
-    cfg = load_config(args.config)
-    if args.run_dir:
-        cfg.run_dir = Path(args.run_dir)
+    cfg = V.run_config(args.config, args.run_dir)
     res = run_bake(cfg, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
     summary = {"dataset": str(res.path), "frames": res.frames, "skipped": res.skipped, "rays": res.rays,
                "seconds": round(res.seconds, 3), "frames_per_s": round(res.frames_per_s, 3),

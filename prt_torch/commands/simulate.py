@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 HELP = "Simulate the cloth of a deformable run (MuJoCo) into its vertex cache (runs/NAME); re-running resumes."
 
@@ -25,15 +24,10 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.cloth.cache import VertexCache
     from prt_torch.cloth.simulate import simulate
     from prt_torch.commands import _validate as V
-    from prt_torch.config import load_config
     from prt_torch.errors import PrtError
     from prt_torch.rundir import RunDir
 
-    if args.run_dir is not None:
-        V.run_dir(args.run_dir, "--run-dir")
-    cfg = load_config(args.config)
-    if args.run_dir:
-        cfg.run_dir = Path(args.run_dir)
+    cfg = V.run_config(args.config, args.run_dir)
     if getattr(cfg, "cloth", None) is None:
         raise PrtError(f"{args.config}: no cloth: section (prt simulate is for deformable runs)")
     t0 = time.perf_counter()
