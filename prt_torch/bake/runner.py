@@ -258,19 +258,11 @@ def _static_arrays(cfg: RunConfig, plan: BakePlan) -> dict[str, np.ndarray]:
     """The arrays written whole when a store is created (deterministic: a repair rewrites them)."""
     b = cfg.bake
     ch = plan.character
-    if plan.deformable:  # no bones: k-means of the rest vertices into max_clusters clusters; no cluster bone
+    if plan.deformable:  # no bones: k-means of the rest vertices (the single root joint is every cluster's bone)
         labels = deformable_clusters(ch, b.max_clusters, b.seed)
-        return {
-            "pose": plan.pose.astype(np.float32),
-            "clip_id": plan.clip_id.astype(np.int32),
-            "frame_index": plan.frame_index.astype(np.int32),
-            "faces": ch.faces.astype(np.int32),
-            "cluster": labels,
-            "cluster_axis": cluster_axes(ch.rest_vertices, labels),
-            "cluster_bone": np.zeros(int(labels.max()) + 1, np.int32),
-        }
-    labels = cluster_vertices(ch.dense_weights, bandwidth=b.cluster_bandwidth, max_clusters=b.max_clusters,
-                              min_size=b.min_cluster_size, seed=b.seed)
+    else:
+        labels = cluster_vertices(ch.dense_weights, bandwidth=b.cluster_bandwidth, max_clusters=b.max_clusters,
+                                  min_size=b.min_cluster_size, seed=b.seed)
     return {
         "pose": plan.pose.astype(np.float32),
         "clip_id": plan.clip_id.astype(np.int32),
