@@ -210,7 +210,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         lighting = lighting_from_sh(spec_sh(spec, ctx.order), 3, source=spec.source)
     rpos = shipping_rpos(ctx.order, ctx.run)
     brdfs = {n: builtin_brdf(n) for n in rpos}
-    camera = player_camera(ctx.character)
+    camera = player_camera(ctx.character, positions=fs.positions if is_deformable(ctx.dataset.attrs) else None)
     req = RadianceRequest(lighting, dict(rpos), brdfs, camera.eye, extra={"light_spec": spec})
     insts: dict[str, MethodBase] = {}
     for n in names:

@@ -357,14 +357,19 @@ class Camera:
     window_hw: tuple[int, int] = WINDOW_HW
 
 
-def player_camera(character: Any, window_hw: tuple[int, int] = WINDOW_HW) -> Camera:
+def player_camera(character: Any, window_hw: tuple[int, int] = WINDOW_HW,
+                  positions: np.ndarray | None = None) -> Camera:
     """The camera :class:`prt_torch.player.Player` uses for ``character`` at its default azimuth and
     elevation (the player's own :func:`~prt_torch.player.player.camera_target` and
-    :func:`~prt_torch.player.player.camera_eye`; no exported run needed)."""
-    from prt_torch.player.player import camera_eye, camera_target
+    :func:`~prt_torch.player.player.camera_eye`; no exported run needed). ``positions (F, V, 3)``: a deformable
+    sequence, framed as the deformable player frames it (:func:`~prt_torch.player.player.sequence_view`)."""
+    from prt_torch.player.player import CAMERA_AZIMUTH, camera_eye, camera_target, sequence_view
 
-    center, radius = camera_target(character.rest_vertices)
-    eye = camera_eye(center, radius)
+    if positions is None:
+        (center, radius), azimuth = camera_target(character.rest_vertices), CAMERA_AZIMUTH
+    else:
+        center, radius, azimuth = sequence_view(positions, character.faces)
+    eye = camera_eye(center, radius, azimuth)
     return Camera(np.asarray(eye, dtype=np.float64), np.asarray(center, dtype=np.float64), tuple(window_hw))
 
 

@@ -79,6 +79,34 @@ def camera_eye(center: np.ndarray, radius: float, azimuth: float = CAMERA_AZIMUT
     return (np.asarray(center) + CAMERA_DISTANCE * radius * d).astype(np.float32)
 
 
+def facing_azimuth(positions: np.ndarray, faces: np.ndarray, chunk: int = 64) -> float:
+    """The camera azimuth (radians, :func:`camera_eye`'s convention) that faces the FRONT side of a surface that
+    moves (a cloth): the horizontal part of its area-weighted mean face normal over every frame of
+    ``positions (F, V, 3)`` (``faces (T, 3)``, counter-clockwise = front). A closed surface (a body) sums to ~0
+    and keeps :data:`CAMERA_AZIMUTH`, so the body + cape subject is seen from the cape's side."""
+    pos = np.asarray(positions, dtype=np.float32)
+    pos = pos.reshape(-1, *pos.shape[-2:])
+    f = np.asarray(faces, dtype=np.int64)
+    n_sum, area = np.zeros(3), 0.0
+    for i in range(0, pos.shape[0], chunk):  # frame chunks: bounded memory (F x T x 3 at once can be GBs)
+        p = pos[i:i + chunk]
+        cr = np.cross(p[:, f[:, 1]] - p[:, f[:, 0]], p[:, f[:, 2]] - p[:, f[:, 0]])
+        n_sum += cr.sum(axis=(0, 1), dtype=np.float64)
+        area += float(np.linalg.norm(cr, axis=-1).sum(dtype=np.float64))
+    h = n_sum[:2]
+    if np.linalg.norm(h) <= 0.05 * max(area, 1e-30):  # no side faces the camera more than another
+        return CAMERA_AZIMUTH
+    return float(np.arctan2(h[0], -h[1]))  # camera_eye's direction (sin a, -cos a) along the mean normal
+
+
+def sequence_view(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """``(center, radius, azimuth)`` of the camera for a deformable sequence ``positions (F, V, 3)``: the
+    :func:`camera_target` box of every position of every frame (a flag blown sideways leaves its rest box) and
+    :func:`facing_azimuth`. The player and ``prt compare`` both frame a cloth run by this rule."""
+    center, radius = camera_target(np.asarray(positions).reshape(-1, 3))
+    return center, radius, facing_azimuth(positions, faces)
+
+
 def _unit(x: np.ndarray) -> np.ndarray:
     return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
 
