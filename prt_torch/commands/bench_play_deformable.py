@@ -5,11 +5,18 @@ run's held-out frames (the dataset's ``positions``; the cached sequences hold th
 frame by frame in ``--repeats`` blocks, medians reported (:class:`prt_torch.player.deformable.DeformablePlayer`):
 
 * ``frames``: numpy :meth:`FrameOperator.frames_soa` + view directions (the player's "pose" step);
+* ``features_numpy``: the player's numpy dihedral angles (:class:`prt_torch.deform.dihedral_soa.DihedralSoA`);
+  ``visibility_numpy``: those features + the pose graph (the player's default visibility step);
 * ``positions_<precision>``: the positions-in graph (dihedral angles -> model -> visibility) at every weight precision
   (the shipped one, and ``--precisions`` exported into a temporary directory); ``visibility_pose``: the shipped pose
   graph on the dataset's features (so ``features ~= positions - visibility_pose`` is the dihedral angles' cost);
 * ``shading``: the shading graph (RPO, ``--brdf``);
-* ``frame_split`` / ``frame_overlap``: the player's whole per-frame path (``compute``) in its two modes - ``fps``;
+* ``frame_<mode>``: the player's whole per-frame path (``compute``): split / overlap / fused with the numpy
+  features (the default; fused: into ``fused.onnx``), ``*_graphfeat`` with the positions graph's features (the
+  previous path), ``*_1thread`` with one onnxruntime thread (the better setting on a loaded 2-core machine) -
+  ``fps``. Spinning threads are not compared here: a spinning pool keeps its cores busy after its call and slows
+  whatever is timed next (measure them in separate processes: the player's ``spinning=``);
+* ``ratios``: new / old of each compared pair, side by side (``< 1``: the new variant is faster);
 * the roofline of :mod:`prt_torch.commands.bench_play` (copy bandwidth, GEMM rate, bytes and FLOPs per step) for the
   frame's lower bound and ``roofline_fraction``.
 """
@@ -82,9 +89,14 @@ def run(args: argparse.Namespace) -> int:
         check(p in PRECISIONS, f"--precisions: unknown precision {p!r} (expected {list(PRECISIONS)})")
     console = Console(stderr=True)
     run_dir = RunDir(args.run)
-    player = DeformablePlayer(run_dir, brdf=args.brdf, threads=args.threads, device=args.device, graph="split")
-    fused = DeformablePlayer(run_dir, brdf=args.brdf, threads=args.threads, device=args.device, graph="fused")
-    overlap = DeformablePlayer(run_dir, brdf=args.brdf, threads=args.threads, device=args.device, graph="overlap")
+    def make(graph: str, threads: int = args.threads, **kw: Any) -> DeformablePlayer:
+        return DeformablePlayer(run_dir, brdf=args.brdf, threads=threads, device=args.device, graph=graph, **kw)
+
+    player = make("split")
+    variants = {"frame_split": player, "frame_split_graphfeat": make("split", features="graph"),
+                "frame_split_1thread": make("split", threads=1), "frame_overlap": make("overlap"),
+                "frame_overlap_graphfeat": make("overlap", features="graph"), "frame_fused": make("fused"),
+                "frame_fused_graphfeat": make("fused", features="graph")}
     try:
         ds = run_dir.dataset()
         rows = ds.split_rows("heldout") if "heldout" in ds.splits else np.flatnonzero(ds.done)
@@ -95,14 +107,15 @@ def run(args: argparse.Namespace) -> int:
         nb = player.n_body
         body = pose[:, pose.shape[1] - nb:] if nb else None
         seq = player.make_sequence(pos, body, name="heldout")
-        overlap.exposure = fused.exposure = player.exposure
+        for q in variants.values():
+            q.exposure = player.exposure
         n = len(seq)
         with tempfile.TemporaryDirectory() as tmp:
             graphs = _positions_graphs(run_dir, [p for p in precisions if p != player.bundle.precision], Path(tmp),
                                        args.threads, args.device)
             graphs[f"{player.bundle.precision} (shipped)"] = player.positions_graph
-            times: dict[str, list[float]] = {k: [] for k in ("frames", "visibility_pose", "shading", "frame_split",
-                                                             "frame_overlap", "frame_fused",
+            times: dict[str, list[float]] = {k: [] for k in ("frames", "features_numpy", "visibility_numpy",
+                                                             "visibility_pose", "shading", *variants,
                                                              *(f"positions_{p}" for p in graphs))}
             vis_pose = player.bundle.graphs["visibility"]
             shade_vis = player.visibility_from_positions(pos[:1], None if body is None else body[:1])
@@ -113,10 +126,10 @@ def run(args: argparse.Namespace) -> int:
                 feeds = player._vis_feeds(p_i, b_i)
                 steps = [("frames", lambda: player.frames(s_i)),
                          ("visibility_pose", lambda: vis_pose.run_unchecked({"pose": pose[sl]})),
+                         ("features_numpy", lambda: player.pose_features(s_i, b_i)),
+                         ("visibility_numpy", lambda: player._visibility_numpy(s_i, b_i)),
                          ("shading", lambda: player.shade(state, visibility=shade_vis, checked=False)),
-                         ("frame_split", lambda: player.compute((p_i, s_i, b_i))),
-                         ("frame_overlap", lambda: overlap.compute((p_i, s_i, b_i))),
-                         ("frame_fused", lambda: fused.compute((p_i, s_i, b_i))),
+                         *((k, (lambda q=q: q.compute((p_i, s_i, b_i)))) for k, q in variants.items()),
                          *((f"positions_{p}", (lambda g=g: g.run_unchecked(feeds))) for p, g in graphs.items())]
                 state = player.frames(s_i)
                 k = i % len(steps)  # rotate the order each frame
@@ -141,23 +154,37 @@ def run(args: argparse.Namespace) -> int:
         bounds = {k: bound(c, bw, gemm) for k, c in costs.items()}
         frame_bound = bounds["visibility"]["bound_ms"] + bounds["shading"]["bound_ms"] + \
             bounds["posing"]["bound_ms"]
-        best = min(ms["frame_split"], ms["frame_overlap"], ms["frame_fused"])
         prec = player.bundle.precision
+        frame_keys = ("frame_split", "frame_overlap", "frame_fused")
+        best = min(ms[k] for k in frame_keys)
+        old_best = min(ms[k] for k in ("frame_split_graphfeat", "frame_overlap_graphfeat", "frame_fused_graphfeat"))
+        pairs = {"visibility: numpy features + pose graph / positions graph":
+                 ("visibility_numpy", f"positions_{prec} (shipped)"),
+                 "features: numpy / positions graph's": ("features_numpy", None),
+                 "frame split: numpy features / graph features": ("frame_split", "frame_split_graphfeat"),
+                 "frame overlap: numpy features / graph features": ("frame_overlap", "frame_overlap_graphfeat"),
+                 "frame fused: numpy features / graph features": ("frame_fused", "frame_fused_graphfeat"),
+                 f"frame split: 1 / {args.threads} onnxruntime thread(s)": ("frame_split_1thread", "frame_split"),
+                 "frame overlap / split": ("frame_overlap", "frame_split"),
+                 "frame fused / split": ("frame_fused", "frame_split")}
+        feat_graph = ms[f"positions_{prec} (shipped)"] - ms["visibility_pose"]
+        ratios = {k: ms[a] / (ms[b] if b else feat_graph) for k, (a, b) in pairs.items()}
+        ratios["best frame: new / old (graph features)"] = best / old_best
         out: dict[str, Any] = {
             "run": str(run_dir.path), "n_vertices": player.bundle.n_vertices, "sh_order": player.order,
             "n_edges": int(player.deform.edges.shape[0]), "n_body_features": nb, "precision": prec,
             "frames_timed": n * args.repeats, "threads": args.threads, "device": args.device,
             "fps": 1e3 / best, "fps_fused": 1e3 / ms["frame_fused"], "fps_split": 1e3 / ms["frame_split"],
-            "fps_overlap": 1e3 / ms["frame_overlap"],
+            "fps_overlap": 1e3 / ms["frame_overlap"], "fps_old": 1e3 / old_best,
+            "fps_variants": {k: 1e3 / ms[k] for k in variants}, "ratios": ratios,
             "steps_ms": ms, "features_ms": ms[f"positions_{prec} (shipped)"] - ms["visibility_pose"],
             "bytes_model": mbytes, "roofline": {"frame_bound_ms": frame_bound, "roofline_fraction": frame_bound / best,
                                                 "steps": bounds},
             "machine": {"copy_bandwidth_gb_s": bw / 1e9, "gemm_gflop_s": gemm / 1e9},
         }
     finally:
-        player.close()
-        overlap.close()
-        fused.close()
+        for q in variants.values():
+            q.close()
     if args.json:
         print(json.dumps(out, indent=1))
         return 0
@@ -170,4 +197,8 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"frame: {out['fps']:.0f} frames/s (fused {out['fps_fused']:.0f}, split {out['fps_split']:.0f}, "
                   f"overlap {out['fps_overlap']:.0f});"
                   f" roofline bound {frame_bound:.3f} ms -> fraction {out['roofline']['roofline_fraction']:.2f}")
+    console.print("side by side (new / old; < 1: faster):")
+    for k, r in ratios.items():
+        console.print(f"  {k:<56} {r:6.3f}  (x{1 / r:.2f})")
+    console.print(f"frame: {out['fps']:.0f} frames/s now, {out['fps_old']:.0f} frames/s with the graph features")
     return 0

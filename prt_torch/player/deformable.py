@@ -7,9 +7,16 @@ numpy + onnxruntime only (never torch). Per frame (:meth:`DeformablePlayer.compu
     [fused]   ORT positions_fused.onnx(positions, frames, view dirs, lobes, RPO): dihedral angles -> model ->
               RPO shading -> radiance (B, V, 3), vertex axes in the export's cluster order like the skinned
               fused graph (frames / view dirs permuted in, radiance back)                                ("fused")
-    [split]   ORT positions.onnx: dihedral angles -> model--> visibility (B, V, C)         ("visibility")
+              (features="numpy": the numpy dihedral angles into fused.onnx, the pose-in fused graph)
+    [split]   features="numpy" (default): numpy dihedral angles (DihedralSoA, vertex-last) [+ body] -> ORT
+              visibility.onnx (the pose graph: the same model) --> visibility (B, V, C)    ("visibility")
+              features="graph": ORT positions.onnx: dihedral angles -> model --> visibility (B, V, C)
               ORT shading.onnx (the skinned player's Player.shade)--> radiance (B, V, 3)     ("shading")
-    [overlap] split, with the positions graph on a worker thread while numpy computes the frames
+    [overlap] split, with the features + model on a worker thread while numpy computes the frames
+
+The numpy features are ~4x faster than the positions graph's (onnxruntime's Gather of the 4 corners of 22k edges
+is ~0.7 ms; numpy's ``take`` of contiguous coordinate rows ~0.15 ms: :mod:`prt_torch.deform.dihedral_soa`), and the
+pose graph is the positions graph's model exactly (same export, same weights); ``prt bench play`` measures both.
 
 Everything after the visibility is the skinned player's (:class:`prt_torch.player.Player`: lighting, RPO catalogue,
 shading graph, tone map, renderer, video writer, timings): this class only replaces the posing (positions come from
@@ -33,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError, check
-from prt_torch.player.player import Player, PlayResult, camera_target
+from prt_torch.player.player import Player, PlayResult, sequence_view
 from prt_torch.player.posing import PoseBatch
 from prt_torch.player.timing import FrameTimer
 from prt_torch.rundir import RunDir
@@ -41,6 +48,8 @@ from prt_torch.runtime.session import OrtGraph
 
 #: graph modes of the deformable player
 DEFORMABLE_MODES = ("fused", "split", "overlap")
+#: where split / overlap compute the dihedral angles: numpy (DihedralSoA, then the pose graph) or positions.onnx
+FEATURE_MODES = ("numpy", "graph")
 #: playback rate when the vertex cache records none
 DEFAULT_FPS = 30.0
 
@@ -70,17 +79,22 @@ class DeformablePlayer(Player):
 
     Args: those of :class:`Player` except ``graph``: ``"split"`` (default: positions graph, then the shading graph;
     the fastest measured on the 7.7k flag), ``"fused"`` (one positions -> radiance call) or ``"overlap"`` (split,
-    the positions graph on a worker thread while numpy computes the frames); ``crowd_chunk`` is not used.
+    the features + model on a worker thread while numpy computes the frames); ``crowd_chunk`` is not used;
+    ``features``: ``"numpy"`` (default, fastest measured: :class:`DihedralSoA` + the pose graph) or ``"graph"``
+    (``positions.onnx``) for split / overlap.
     """
 
     def __init__(self, run_dir: str | os.PathLike[str] | RunDir, env: str | os.PathLike[str] | None = None,
                  brdf: str | None = None, graph: str = "split", threads: int = 2,
                  window_size: tuple[int, int] = (480, 640), exposure: Any = None, n_lobes: int = 3,
-                 blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu") -> None:
+                 blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu",
+                 features: str = "numpy") -> None:
+        from prt_torch.deform.dihedral_soa import DihedralSoA
         from prt_torch.export.deform_data import DeformData
 
         check(graph in DEFORMABLE_MODES, f"unknown graph mode {graph!r} for a deformable run: expected one of "
                                          f"{list(DEFORMABLE_MODES)}")
+        check(features in FEATURE_MODES, f"unknown features mode {features!r}: expected one of {list(FEATURE_MODES)}")
         super().__init__(run_dir, env=env, brdf=brdf, graph="split", threads=threads, window_size=window_size,
                          exposure=exposure, n_lobes=n_lobes, blas_threads=blas_threads, spinning=spinning,
                          device=device)
@@ -91,12 +105,14 @@ class DeformablePlayer(Player):
                                       f"{run.export_json.name}): play it with --clip, or run `prt export` on it")
         self.deform = DeformData.load(run.deform_path)  # verified against export.json's sha256 by the bundle
         self.n_body = self.deform.n_body_features
+        self.features = features
+        self.dihedral = DihedralSoA(self.deform.edges, self.bundle.n_vertices)
         self.positions_graph = OrtGraph(run.positions_graph_path, threads=threads, spinning=spinning, device=device)
         md = self.positions_graph.metadata
         check(md.get("prt.character_hash") == self.bundle.meta["character_hash"],
               f"{run.positions_graph_path.name}: exported for another subject: run `prt export {run.path} --force`")
         self.positions_fused: OrtGraph | None = None
-        if graph == "fused":
+        if graph == "fused" and features == "graph":
             check("fused_file" in meta, f"{run.export_json}: no positions_fused graph (an older export): run `prt "
                                         f"export {run.path} --force`, or play with --graph split")
             self.positions_fused = OrtGraph(run.positions_fused_path, threads=threads, spinning=spinning,
@@ -164,6 +180,18 @@ class DeformablePlayer(Player):
         view *= 1.0 / np.maximum(np.sqrt(np.einsum("bkv,bkv->bv", view, view)), 1e-12)[:, None]
         return PoseBatch(p, normals, frames, view, np.zeros((p.shape[0], 0), np.float32))
 
+    def pose_features(self, positions_soa: np.ndarray, body: np.ndarray | None = None) -> np.ndarray:
+        """``positions (B, 3, V)`` [+ ``body (B, Ab)``] -> the model's input ``(B, E [+ Ab])``: numpy dihedral
+        angles (:class:`~prt_torch.deform.dihedral_soa.DihedralSoA`), body features appended (the positions
+        graph's rule)."""
+        f = self.dihedral(positions_soa)
+        return np.concatenate([f, np.asarray(body, np.float32)], axis=1) if self.n_body else f
+
+    def _visibility_numpy(self, positions_soa: np.ndarray, body: np.ndarray | None,
+                          graph: OrtGraph | None = None) -> np.ndarray:
+        g = graph or self.bundle.graphs["visibility"]
+        return g.run_unchecked({"pose": self.pose_features(positions_soa, body)})[0]
+
     def _vis_feeds(self, positions: np.ndarray, body: np.ndarray | None) -> dict[str, np.ndarray]:
         feeds = {"positions": np.ascontiguousarray(positions, dtype=np.float32)}
         if self.n_body:
@@ -191,13 +219,17 @@ class DeformablePlayer(Player):
         :class:`Sequence`, checked) -> (posed batch, radiance (B, V, 3)); the per-frame path of :meth:`Player.play`."""
         positions, positions_soa, body = frame
         t0 = time.perf_counter()
-        if self.mode == "fused" and self.positions_fused is not None:
+        if self.mode == "fused":
             state = self.frames(positions_soa)
             o = self.vertex_order
-            feeds = {**self._vis_feeds(positions, body), "frames": state.in_order("frames", o),
-                     "view_dirs": state.in_order("view_dirs", o), **self._light_feeds()}
+            if self.positions_fused is not None:  # features="graph": positions_fused.onnx
+                g, inputs = self.positions_fused, self._vis_feeds(positions, body)
+            else:  # numpy features into the pose-in fused graph (fused.onnx, the same model and shading)
+                g, inputs = self.bundle.graphs["fused"], {"pose": self.pose_features(positions_soa, body)}
+            feeds = {**inputs, "frames": state.in_order("frames", o), "view_dirs": state.in_order("view_dirs", o),
+                     **self._light_feeds()}
             t1 = time.perf_counter()
-            out = self._to_original(self.positions_fused.run_unchecked(feeds)[0])
+            out = self._to_original(g.run_unchecked(feeds)[0])
             if timer is not None:
                 timer.add("pose", t1 - t0)
                 timer.add("fused", time.perf_counter() - t1)
@@ -207,16 +239,23 @@ class DeformablePlayer(Player):
                 from concurrent.futures import ThreadPoolExecutor
 
                 self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prt-visibility")
-                self._vis_overlap = OrtGraph(self.positions_graph.path, threads=1, spinning=self._spinning,
-                                             device=self.device)
-            fut = self._pool.submit(self._vis_overlap.run_unchecked, self._vis_feeds(positions, body))
+                path = self.positions_graph.path if self.features == "graph" else \
+                    self.bundle.graphs["visibility"].path
+                self._vis_overlap = OrtGraph(path, threads=1, spinning=self._spinning, device=self.device)
+            if self.features == "graph":
+                fut = self._pool.submit(lambda: self._vis_overlap.run_unchecked(self._vis_feeds(positions, body))[0])
+            else:
+                fut = self._pool.submit(self._visibility_numpy, positions_soa, body, self._vis_overlap)
             state = self.frames(positions_soa)
             t1 = time.perf_counter()
-            vis = fut.result()[0]
+            vis = fut.result()
         else:
             state = self.frames(positions_soa)
             t1 = time.perf_counter()
-            vis = self.positions_graph.run_unchecked(self._vis_feeds(positions, body))[0]
+            if self.features == "graph":
+                vis = self.positions_graph.run_unchecked(self._vis_feeds(positions, body))[0]
+            else:
+                vis = self._visibility_numpy(positions_soa, body)
         t2 = time.perf_counter()
         out = self.shade(state, visibility=vis, checked=False)
         if timer is not None:
@@ -226,10 +265,9 @@ class DeformablePlayer(Player):
         return state, out
 
     def frame_sequence(self, seq: Sequence) -> None:
-        """Aim the camera at the whole sequence: the player's rule (:func:`camera_target`: bounding-box centre and
-        diagonal) over every position of every frame instead of the rest mesh (a flag blown sideways leaves the
-        rest mesh's box)."""
-        self.center, self.radius = camera_target(seq.positions.reshape(-1, 3))
+        """Aim the camera at the whole sequence (:func:`~prt_torch.player.player.sequence_view`: the box of every
+        position of every frame, from the side the cloth's front faces)."""
+        self.center, self.radius, self.camera_azimuth = sequence_view(seq.positions, self.character.faces)
 
     def clip_locals(self, clip: Any, fps: float | None = None) -> Any:
         """The frames :meth:`Player.play` iterates: the :class:`Sequence` ``clip`` (a name: the cached one)."""

@@ -58,21 +58,67 @@ def test_played_radiance_equals_the_shipping_shader(player) -> None:
     assert float(np.abs(rad - ref).max() / np.abs(ref).max()) < 1e-4
 
 
-@pytest.mark.parametrize("mode", ["fused", "overlap"])
-def test_graph_modes_agree(player, deformable_run, mode: str) -> None:
-    """positions graph + shading graph (the default) == the fused positions -> radiance graph (cluster order) ==
-    the overlapped split path."""
+@pytest.mark.parametrize("mode,features", [("fused", "numpy"), ("fused", "graph"), ("overlap", "numpy"),
+                                           ("overlap", "graph")])
+def test_graph_modes_agree(player, deformable_run, mode: str, features: str) -> None:
+    """split (numpy features, pose graph, shading graph: the default) == the fused graphs (cluster order:
+    fused.onnx on the numpy features, positions_fused.onnx on the positions) == the overlapped split path (either
+    features)."""
     from prt_torch.player.deformable import DeformablePlayer
 
     assert player.mode == "split" and player.vertex_order is not None
     pos = heldout_positions()[3:4]
     _, a = player.compute_positions(pos)
-    p2 = DeformablePlayer(deformable_run[0], brdf="phong", graph=mode)
+    p2 = DeformablePlayer(deformable_run[0], brdf="phong", graph=mode, features=features)
     try:
+        assert (p2.positions_fused is not None) == (mode == "fused" and features == "graph")
         _, b = p2.compute_positions(pos)
     finally:
         p2.close()
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_numpy_features_equal_the_positions_graph(player, deformable_run) -> None:
+    """The default visibility step (numpy dihedral angles + the pose graph) == the shipped positions graph (ORT,
+    features in the graph) and the features == the numpy rule cloth_features; whole frames agree across the two
+    feature modes."""
+    from prt_torch.cloth.inputs import cloth_features
+    from prt_torch.player.deformable import DeformablePlayer
+
+    assert player.features == "numpy"
+    pos = heldout_positions()[4:7]
+    soa = np.ascontiguousarray(pos.transpose(0, 2, 1))
+    ref_f = cloth_features(pos.astype(np.float64), deformable_run[1].edges, None)
+    np.testing.assert_allclose(player.pose_features(soa), ref_f, atol=1e-4)
+    vis = player._visibility_numpy(soa, None)
+    ref = player.visibility_from_positions(pos)
+    np.testing.assert_allclose(vis, ref, atol=1e-5 * float(np.abs(ref).max()))
+    p2 = DeformablePlayer(deformable_run[0], brdf="phong", features="graph")
+    try:
+        _, a = player.compute_positions(pos)
+        _, b = p2.compute_positions(pos)
+    finally:
+        p2.close()
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+    with pytest.raises(PrtError, match="features mode"):
+        DeformablePlayer(deformable_run[0], features="torch")
+
+
+def test_bench_play_deformable_ratios(deformable_run, capsys: pytest.CaptureFixture[str]) -> None:
+    """`prt bench play` on a deformable export: every variant timed, and each reported ratio is the quotient of the
+    medians it names (new / old, side by side)."""
+    from prt_torch.cli import main
+
+    rc = main(["bench", "play", str(deformable_run[0]), "--frames", "5", "--repeats", "1", "--warmup", "1",
+               "--precisions", "int8", "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    ms, r = out["steps_ms"], out["ratios"]
+    assert set(out["fps_variants"]) >= {"frame_split", "frame_split_graphfeat", "frame_overlap", "frame_fused"}
+    assert r["frame split: numpy features / graph features"] == pytest.approx(
+        ms["frame_split"] / ms["frame_split_graphfeat"])
+    assert out["fps"] == pytest.approx(1e3 / min(ms[k] for k in ("frame_split", "frame_overlap", "frame_fused")))
+    assert all(v > 0 for v in r.values())
 
 
 def test_play_writes_video_and_timings(player, tmp_path: Path) -> None:
