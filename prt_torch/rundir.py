@@ -72,6 +72,7 @@ _EXPORT_JSON = "export.json"
 _FRAMES = "frames.npz"
 _BLOCKERS = "blockers.npz"
 _SHEXP_ONNX = "shexp.onnx"
+_TRANSFER_ONNX = "transfer.onnx"  # the learned transfer graph (prt_torch.export.transfer_graph)
 _S001 = "s001.npz"
 _DEFORM = "deform.npz"  # a deformable run's frame operator + cloth edges (prt_torch.export.deformable)
 _POSITIONS_ONNX = "positions.onnx"  # a deformable run's positions-in visibility graph
@@ -362,6 +363,12 @@ class RunDir:
     def positions_fused_path(self) -> Path:
         """``positions_fused.onnx``: a deformable run's ``positions -> radiance`` graph (``prt export``)."""
         return self.path / _POSITIONS_FUSED_ONNX
+
+    @property
+    def transfer_graph_path(self) -> Path:
+        """``transfer.onnx``: the learned transfer graph ``(pose, light) -> (transfer, L . t [, subsurface, ...])``
+        (:mod:`prt_torch.export.transfer_graph`, ``prt export`` of a run with ``transfer.json``)."""
+        return self.path / _TRANSFER_ONNX
 
     def graph_path(self, graph: str) -> Path:
         """``<graph>.onnx`` for ``graph`` in :data:`GRAPHS`."""

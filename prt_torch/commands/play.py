@@ -39,10 +39,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
                                                         "a timings file in RUN)")
     parser.add_argument("--light-angle", type=float, default=0.0, help="rotate the lighting about z (degrees)")
-    parser.add_argument("--renderer", default="onnx", choices=["onnx", "sg", "s001", "posespace"],
+    parser.add_argument("--renderer", default="onnx", choices=["onnx", "sg", "s001", "posespace", "transfer"],
                         help="onnx: the run's learned models; sg: SG lighting + voxel cone-traced visibility of each "
                              "posed frame (seed 004; needs torch and healpy); s001 / posespace: the run's compressed "
-                             "transfer matrices (seed 001, train.s001) interpolated per segment / globally")
+                             "transfer matrices (seed 001, train.s001) interpolated per segment / globally; "
+                             "transfer: the run's learned diffuse (+ subsurface) transfer, L . t (seed 000, "
+                             "train.transfer, then prt export)")
     parser.add_argument("--vct-resolution", type=int, default=128, help="--renderer sg: voxel grid side (64-256)")
     parser.add_argument("--ground", action="store_true", help="a floor under the character(s), with cast shadows "
                                                               "(prt_torch.player.scene)")
@@ -118,6 +120,11 @@ def run(args: argparse.Namespace) -> int:
         from prt_torch.player.s001_renderer import S001RunPlayer
 
         player = S001RunPlayer(args.run, env=args.env, brdf=args.brdf, scheme=args.renderer, window_size=(h, w))
+    elif args.renderer == "transfer":
+        from prt_torch.player.transfer import TransferPlayer
+
+        player = TransferPlayer(args.run, env=args.env, brdf=args.brdf, threads=args.threads, window_size=(h, w),
+                                device=args.device)
     else:
         player = Player(args.run, env=args.env, brdf=args.brdf, graph=args.graph, threads=args.threads,
                         window_size=(h, w), device=args.device)

@@ -193,10 +193,11 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     deform_files = (run.deform_path, run.positions_graph_path, run.positions_fused_path) if deform is not None else ()
     key = stage_key({"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
                      "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT, "blockers": n_spheres,
-                     "shexp_graph": SHEXP_GRAPH_VERSION,
+                     "shexp_graph": SHEXP_GRAPH_VERSION, **_transfer_key(run),
                      **({"deformable": [DEFORMABLE_VERSION, deform.n_body_features]} if deform is not None else {})})
     outputs = (run.export_json, run.frames_path, *(run.graph_path(g) for g in GRAPHS),
-               *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path, *deform_files)
+               *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path, *deform_files,
+               *([run.transfer_graph_path] if run.transfer_json.is_file() else []))
     if not force and run.is_current("export", key, outputs):
         try:
             return run.export_meta()
@@ -283,6 +284,11 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         if console is not None:
             console.print(f"  {path.name}: parity rel. error {p.rel_error:.2e} on {len(pose)} held-out poses")
     shexp = ship_shexp(run, character, order, n_spheres, opset, base_meta)
+    from prt_torch.export.transfer_graph import ship_transfer  # learned transfer (seed 000), issue 12 item 6
+
+    transfer = ship_transfer(run, order * order, pose, base_meta, opset=opset, exporter=exporter)
+    if transfer is not None and console is not None:
+        console.print(f"  {run.transfer_graph_path.name}: parity rel. error {transfer['parity']['rel_error']:.2e}")
     deformable = None
     if deform is not None:  # a deformable run: the frame operator + the positions-in graph
         from prt_torch.export.deformable import ship_deformable
@@ -307,13 +313,23 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         "parity_rows": held["rows"].tolist(), "export_seconds": time.perf_counter() - t0,
         "model_file": run.relative(mpath), "shexp": shexp,
         **({"deformable": deformable} if deformable is not None else {}),
+        **({"transfer": transfer} if transfer is not None else {}),
         "file_sha256": run.unit_hashes([run.frames_path, *(run.rpo_path(b) for b in rpo_files),
                                         *(run.graph_path(g) for g in GRAPHS), run.blockers_path, run.shexp_path,
-                                        *deform_files]),
+                                        *deform_files, *([run.transfer_graph_path] if transfer else [])]),
     }
     atomic_write_json(run.export_json, meta)  # the commit record: written last
     run.mark_done("export", key)
     return meta
+
+
+def _transfer_key(run: RunDir) -> dict[str, Any]:
+    """The stage-key part of the learned transfer graph: ``transfer.json``'s sha256 (it records the models')."""
+    if not run.transfer_json.is_file():
+        return {}
+    from prt_torch.export.transfer_graph import TRANSFER_GRAPH_VERSION
+
+    return {"transfer": [file_sha256(run.transfer_json), TRANSFER_GRAPH_VERSION]}
 
 
 def _per_cluster(model: Any) -> bool:

@@ -1,5 +1,7 @@
-"""``learned_transfer``: a tiny baked run with transfer (1 bounce) trained with ``train.transfer``; onnxruntime vs
-torch; the shading ``L . t`` vs the closed-form irradiance (Ramamoorthi-Hanrahan 2001); ``prt compare``; errors."""
+"""``learned_transfer``: a tiny baked run with transfer (1 bounce) and subsurface trained with ``train.transfer``;
+onnxruntime vs torch; the shading ``L . t`` vs the closed-form irradiance (Ramamoorthi-Hanrahan 2001); the
+subsurface term vs numpy on the baked arrays; ``prt export``'s transfer graph and ``prt play --renderer transfer``
+(the same run, exported once); ``prt compare``; errors."""
 
 from __future__ import annotations
 
@@ -122,7 +124,7 @@ def test_onnxruntime_matches_torch_and_compare(tiny_run: Path) -> None:
     m = METHODS["learned_transfer"]()
     m.prepare(ctx, fs)
     light = np.random.default_rng(2).normal(size=(ctx.order**2, 3)).astype(np.float32)
-    t_ort, r_ort = m._run(fs.features, light)
+    t_ort, r_ort = m._run(fs.features, light)[:2]  # (transfer, L . t); then subsurface, L . t_sss
     with torch.no_grad():
         t_torch = load_model_file(RunDir(tiny_run).transfer_model_path("mlp"))(torch.from_numpy(fs.features)).numpy()
     np.testing.assert_allclose(t_ort, t_torch, rtol=1e-4, atol=1e-5)
@@ -163,3 +165,181 @@ def test_unavailable_and_bad_input(tiny_run: Path, tmp_path: Path) -> None:
         assert not METHODS["learned_transfer_linear"].available(_compare_run(tiny_run))
     finally:
         path.write_bytes(data)
+
+
+# -- issue 12 item 6: the subsurface term, the exported graph, the player ----------------------------------------------
+
+
+def _numpy_colour(lt: np.ndarray, lsss: np.ndarray | None, tint: np.ndarray) -> np.ndarray:
+    """The documented rule written out: ``tint * (L . t) + tint / mean(tint) * (L . t_sss)``."""
+    tint = np.asarray(tint, np.float64)
+    out = tint * lt
+    return out if lsss is None else out + (tint / tint.mean()) * lsss
+
+
+def test_baked_transfer_subsurface_term_matches_numpy(tiny_run: Path) -> None:
+    """``baked_transfer`` (and :func:`transfer_radiance`) on the held-out frames = numpy on the store's own
+    ``transfer`` and ``subsurface`` arrays (read with zarr), float64 dot products with the lighting's first C6
+    coefficients; the subsurface term is present (the store has it) and not negligible."""
+    import zarr
+
+    from prt_torch.compare.methods import METHODS, FrameBatch, RadianceRequest
+    from prt_torch.compare.run import heldout_frames
+
+    ctx = _compare_run(tiny_run)
+    fs = heldout_frames(ctx, 3)
+    m = METHODS["baked_transfer"]()
+    m.prepare(ctx, fs)
+    assert m.info()["arrays"] == ["transfer", "subsurface"]
+    light = np.random.default_rng(3).normal(size=(16, 3))  # order 4: only the first 9 meet the order-3 transfer
+    tints = {"a": np.array([0.8, 0.5, 0.3]), "b": np.array([0.2, 0.2, 0.2])}
+    rpos = {k: SimpleNamespace(tint=v) for k, v in tints.items()}
+    req = RadianceRequest(lighting=SimpleNamespace(sh=light), rpos=rpos, brdfs={}, eye=np.zeros(3))
+    got = m.radiance(FrameBatch(index=np.arange(len(fs.rows)), features=fs.features, positions=None, frames=None),
+                     req)
+    root = zarr.open_group(str(RunDir(tiny_run).dataset_path), mode="r")
+    t = np.asarray(root["transfer"][:])[fs.rows].astype(np.float64)
+    sss = np.asarray(root["subsurface"][:])[fs.rows].astype(np.float64)
+    lt, ls = t @ light[:9], sss @ light[:9]
+    assert np.abs(ls).max() > 1e-3 * np.abs(lt).max()
+    for k, tint in tints.items():
+        np.testing.assert_allclose(got[k], _numpy_colour(lt, ls, tint), rtol=1e-4, atol=1e-5)
+    # a grey tint keeps the baked subsurface magnitude: (L . t_sss) itself
+    np.testing.assert_allclose(got["b"] - 0.2 * lt, ls, rtol=1e-4, atol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def exported(tiny_run: Path) -> dict[str, Any]:
+    from prt_torch.export import export_run
+
+    return export_run(tiny_run, brdfs=("lambert", "phong"))
+
+
+def test_export_ships_transfer_graph_matching_torch(tiny_run: Path, exported: dict[str, Any]) -> None:
+    """``prt export`` writes ``transfer.onnx`` (listed in ``export.json`` with its sha256, recomputed here with
+    hashlib); onnxruntime's outputs equal the torch models' transfer and subsurface and numpy's ``L . t``; the
+    compare method runs that file (no copy in the compare directory)."""
+    import hashlib
+
+    import onnxruntime as ort
+    import torch
+
+    from prt_torch.compare.methods import METHODS
+    from prt_torch.compare.run import heldout_frames
+    from prt_torch.models import load_model_file
+
+    run = RunDir(tiny_run)
+    entry = exported["transfer"]
+    assert entry["arrays"] == ["transfer", "subsurface"] and entry["kind"] == "mlp" and entry["n_light"] == 9
+    assert entry["parity"]["rel_error"] < 1e-4 and entry["subsurface"]["eta"] == 1.3
+    path = run.transfer_graph_path
+    assert exported["file_sha256"][run.relative(path)] == hashlib.sha256(path.read_bytes()).hexdigest()
+    ctx = _compare_run(tiny_run)
+    fs = heldout_frames(ctx, 4)
+    light = np.random.default_rng(4).normal(size=(9, 3)).astype(np.float32)
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    t, r, s, rs = sess.run(["transfer", "radiance", "subsurface", "subsurface_radiance"],
+                           {"pose": fs.features.astype(np.float32), "light": light})
+    with torch.no_grad():
+        x = torch.from_numpy(fs.features.astype(np.float32))
+        t_ref = load_model_file(run.transfer_model_path("mlp", "transfer"))(x).numpy().astype(np.float64)
+        s_ref = load_model_file(run.transfer_model_path("mlp", "subsurface"))(x).numpy().astype(np.float64)
+    for got, want in ((t, t_ref), (s, s_ref), (r, t_ref @ light), (rs, s_ref @ light)):
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5 * np.abs(want).max())
+    m = METHODS["learned_transfer"]()
+    compare_copy = run.compare_graph_path("transfer_mlp")
+    compare_copy.unlink(missing_ok=True)
+    m.prepare(ctx, fs)
+    assert m.graph.path == path and "exported by prt export" in m.runtime and not compare_copy.exists()
+
+
+def test_player_transfer_radiance_is_numpy_dot_of_torch_transfer(tiny_run: Path, exported: dict[str, Any]) -> None:
+    """``TransferPlayer``'s radiance of a clip frame = ``tint * (L . t) + tint / mean(tint) * (L . t_sss)`` with
+    ``t``, ``t_sss`` the torch models' output for the frame's pose features and ``L`` the player's lighting SH (its
+    first 9 coefficients), after a light rotation too (``rotate_lighting`` of the unrotated SH)."""
+    import torch
+
+    from prt_torch.light.rotation import rotate_lighting
+    from prt_torch.models import load_model_file
+    from prt_torch.player.transfer import TransferPlayer
+
+    run = RunDir(tiny_run)
+    p = TransferPlayer(tiny_run, threads=1, brdf="lambert")
+    try:
+        assert p.arrays == ["transfer", "subsurface"]
+        loc = p.clip_locals("wave")[3:4]
+        for angle in (0.0, 0.7):
+            p.rotate_light(angle - p.light_angle)
+            state, rad = p.compute(loc)
+            c, s_ = np.cos(angle), np.sin(angle)
+            R = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])
+            light = np.asarray(rotate_lighting(np.asarray(p.lighting.sh, np.float64), R))[:9]
+            with torch.no_grad():
+                x = torch.from_numpy(np.asarray(state.features, np.float32))
+                t = load_model_file(run.transfer_model_path("mlp", "transfer"))(x).numpy().astype(np.float64)
+                sss = load_model_file(run.transfer_model_path("mlp", "subsurface"))(x).numpy().astype(np.float64)
+            want = _numpy_colour(t @ light, sss @ light, p.rpo.tint)
+            assert rad.shape == (1, run.character().num_vertices, 3)
+            np.testing.assert_allclose(rad, want, rtol=1e-4, atol=1e-5 * np.abs(want).max())
+    finally:
+        p.close()
+
+
+def test_play_transfer_command_without_torch(tiny_run: Path, exported: dict[str, Any], tmp_path: Path) -> None:
+    """``prt play --renderer transfer`` writes frames and timings in a process that never imports torch."""
+    import subprocess
+    import sys
+
+    png, timings = tmp_path / "png", tmp_path / "t.json"
+    code = ("import sys\nfrom prt_torch.cli import main\n"
+            f"rc = main(['play', {str(tiny_run)!r}, '--clip', 'wave', '--renderer', 'transfer', '--max-frames', '2', "
+            f"'--size', '96x128', '--png', {str(png)!r}, '--timings', {str(timings)!r}, '--threads', '1'])\n"
+            "assert rc == 0, rc\nassert 'torch' not in sys.modules, 'torch imported'\nprint('ok')")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "ok" in r.stdout, r.stderr[-2000:]
+    frames = sorted(png.glob("frame_*.png"))
+    assert len(frames) == 2
+    t = json.loads(timings.read_text())
+    assert t["graph"] == "transfer" and t["summary"]["frames"] == 2 and t["summary"]["compute_fps"] > 0
+
+
+def test_transfer_bad_input_is_one_line(tiny_run: Path, exported: dict[str, Any]) -> None:
+    from prt_torch.export.transfer_shading import subsurface_tint, transfer_shading
+    from prt_torch.player.transfer import TransferPlayer
+
+    cases = [
+        (lambda: transfer_shading(np.zeros((2, 3)), {"a": np.ones(3)}), "radiance must be"),
+        (lambda: transfer_shading(np.zeros((1, 2, 3)), {"a": np.ones(3)}, np.zeros((1, 3, 3))), "subsurface"),
+        (lambda: subsurface_tint(np.zeros(3)), "albedo"),
+        (lambda: subsurface_tint([1.0, np.nan, 1.0]), "albedo"),
+    ]
+    for fn, msg in cases:
+        with pytest.raises(PrtError, match=msg) as e:
+            fn()
+        assert "\n" not in str(e.value)
+    p = TransferPlayer(tiny_run, threads=1)
+    try:
+        with pytest.raises(PrtError, match="pose features") as e:
+            p.transfer_radiance(np.zeros((1, 3), np.float32))
+        assert "\n" not in str(e.value)
+    finally:
+        p.close()
+    run = RunDir(tiny_run)  # an export without the transfer graph: refused with one line naming the fix
+    text = run.export_json.read_text()
+    try:
+        meta = json.loads(text)
+        meta.pop("transfer")
+        run.export_json.write_text(json.dumps(meta))
+        with pytest.raises(PrtError, match="train.transfer") as e:
+            TransferPlayer(tiny_run, threads=1)
+        assert "\n" not in str(e.value)
+    finally:
+        run.export_json.write_text(text)
+    record = run.transfer_json.read_bytes()  # retrained since the export (another transfer.json): stale, refused
+    try:
+        run.transfer_json.write_bytes(record + b"\n")
+        with pytest.raises(PrtError, match="no current learned transfer graph") as e:
+            TransferPlayer(tiny_run, threads=1)
+        assert "\n" not in str(e.value)
+    finally:
+        run.transfer_json.write_bytes(record)

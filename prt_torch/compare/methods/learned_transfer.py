@@ -1,20 +1,25 @@
-"""``learned_transfer``: seed 000's learned diffuse transfer, shaded ``albedo * (L . t)`` (a radiance method).
+"""``learned_transfer``: seed 000's learned diffuse transfer (+ subsurface), shaded ``albedo * (L . t) + sss_tint *
+(L . t_sss)`` (a radiance method).
 
 The run's ``models/transfer_<kind>.pt`` (``prt train`` with ``train.transfer``, :mod:`prt_torch.fit.transfer`;
-``transfer.json`` lists them) predicts the world-frame transfer ``t (V, C6)`` of a pose. One graph
-(:func:`radiance_graph`: the model as exported by :class:`prt_torch.export.graphs.VisibilityGraph`, then ``L . t`` by
-:func:`prt_torch.shade.diffuse.shade_diffuse_prt`) is exported into the run's compare directory with
-:func:`prt_torch.export.onnx_file.export_onnx` (re-exported when the model file is newer) and run through
-onnxruntime (:class:`prt_torch.runtime.session.OrtGraph`), like the ``learned_<kind>`` methods. ``L``: the player's
-lighting as world-frame SH (``lighting.sh``, the run's order; the first ``min(C, C6)`` coefficients of ``t`` meet
-it); the albedo of each compared BRDF is the tint of its shipped RPO (radiance ``tint * (L . t)``). A diffuse
-transfer has no view dependence: the glossy column is that BRDF's diffuse stand-in of the same albedo (seed 000 is
-diffuse only), and ``t`` includes the bake's ``bounces`` interreflections, which ``sh_truth`` (direct lighting) has
-not.
+``transfer.json`` lists them) predicts the world-frame transfer ``t (V, C6)`` of a pose, and
+``models/subsurface_<kind>.pt`` (when the bake had ``bake.subsurface``) the subsurface exit-radiance transfer
+``t_sss``. The graph is :mod:`prt_torch.export.transfer_graph`'s ``(pose, light) -> (t, L . t [, t_sss, L . t_sss])``:
+the run's exported ``transfer.onnx`` (``prt export``, parity-checked there) when it is the kind compared and the
+lighting order matches, else the same graph written into the compare directory by the same function
+(re-exported when the model file is newer); run through onnxruntime (:class:`prt_torch.runtime.session.OrtGraph`).
+``L``: the player's lighting as world-frame SH (``lighting.sh``, the run's order; the first ``min(C, C6)``
+coefficients of ``t`` meet it). Colour: :func:`prt_torch.export.transfer_shading.transfer_shading` (ONE rule for this
+method, ``baked_transfer`` and ``prt play --renderer transfer``): ``albedo`` the tint of each compared BRDF's shipped
+RPO, ``sss_tint = albedo / mean(albedo)`` (the baked subsurface already carries its dipole material's reflectance).
+A diffuse transfer has no view dependence: the glossy column is that BRDF's diffuse stand-in of the same albedo
+(seed 000 is diffuse only), and ``t`` includes the bake's ``bounces`` interreflections and the subsurface light,
+which ``sh_truth`` (direct lighting, opaque) has not.
 
 ``learned_transfer`` runs ``transfer.json``'s default kind; ``learned_transfer_<kind>`` (opt-in) each trained kind.
-``info()`` adds ``transfer_rel_err``: the compared frames' predicted transfer vs the baked one (held-out dataset
-frames; ``None`` for frames posed here), the full-sphere relative L2 of :mod:`prt_torch.fit.transfer`.
+``info()`` adds ``transfer_rel_err`` (and ``subsurface_rel_err``): the compared frames' predicted transfer vs the
+baked one (held-out dataset frames; ``None`` for frames posed here), the full-sphere relative L2 of
+:mod:`prt_torch.fit.transfer`.
 """
 
 from __future__ import annotations
@@ -25,48 +30,24 @@ import numpy as np
 
 from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
 from prt_torch.errors import PrtError, check
+from prt_torch.export.transfer_shading import ARRAYS, light_dot, transfer_shading
 
 ARRAY = "transfer"
+SSS = "subsurface"
 
 
-def transfer_radiance(t: np.ndarray, light_sh: np.ndarray, albedo: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``{brdf: (B, V, 3)}`` radiance ``albedo[brdf] * (L . t)`` of transfer ``t (B, V, C6)`` under world-frame SH
-    lighting ``light_sh (C, 3)`` (the first ``min(C, C6)`` coefficients of both; float32)."""
-    import torch
-
-    from prt_torch.shade.diffuse import shade_diffuse_prt
-
+def transfer_radiance(t: np.ndarray, light_sh: np.ndarray, albedo: dict[str, np.ndarray],
+                      t_sss: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """``{brdf: (B, V, 3)}`` radiance of transfer ``t (B, V, C6)`` (and subsurface transfer ``t_sss``, same shape)
+    under world-frame SH lighting ``light_sh (C, 3)``: numpy ``L . t`` (the first ``min(C, C6)`` coefficients),
+    coloured by :func:`prt_torch.export.transfer_shading.transfer_shading`; float32."""
     t = np.asarray(t, dtype=np.float32)
     light_sh = np.asarray(light_sh, dtype=np.float32)
     check(t.ndim == 3 and light_sh.ndim == 2 and light_sh.shape[1] == 3,
           f"transfer_radiance: expected t (B, V, C) and lighting (C, 3), got {t.shape} and {light_sh.shape}")
-    c = min(t.shape[2], light_sh.shape[0])
-    rad = shade_diffuse_prt(torch.from_numpy(np.ascontiguousarray(t[..., :c])), torch.from_numpy(light_sh[:c]),
-                            check=False).numpy()
-    return {b: rad * np.asarray(a, dtype=np.float32).reshape(1, 1, 3) for b, a in albedo.items()}
-
-
-def radiance_graph(model: Any, n_light: int) -> Any:
-    """``(pose (B, A), light (n_light, 3)) -> (transfer (B, V, C6), radiance (B, V, 3))``: the learned transfer
-    model (as exported, :class:`prt_torch.export.graphs.VisibilityGraph`) and its unit-albedo shading ``L . t``
-    (:func:`prt_torch.shade.diffuse.shade_diffuse_prt`, the first ``min(C6, n_light)`` coefficients) in one
-    graph, so onnxruntime runs the whole per-frame path."""
-    import torch
-
-    from prt_torch.export.graphs import VisibilityGraph
-    from prt_torch.shade.diffuse import shade_diffuse_prt
-
-    class TransferRadiance(torch.nn.Module):
-        def __init__(self) -> None:
-            super().__init__()
-            self.transfer = VisibilityGraph(model)
-            self.c = min(int(model.n_coeffs), int(n_light))
-
-        def forward(self, pose: torch.Tensor, light: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            t = self.transfer(pose)
-            return t, shade_diffuse_prt(t[..., : self.c], light[: self.c], check=False)
-
-    return TransferRadiance().eval()
+    check(t_sss is None or np.shape(t_sss) == t.shape,
+          f"transfer_radiance: subsurface transfer {np.shape(t_sss)} != transfer {t.shape}")
+    return transfer_shading(light_dot(t, light_sh), albedo, None if t_sss is None else light_dot(t_sss, light_sh))
 
 
 def transfer_meta(run: CompareRun) -> dict[str, Any] | None:
@@ -108,43 +89,48 @@ class LearnedTransfer(MethodBase):
         self.meta = meta
         self.kind_used = self._kind(meta)
         self.n_light = run.order**2
-        path = self._export(run)
+        path, source = self._graph(run)
         self.graph = OrtGraph(path, threads=run.threads)
+        self.arrays = [a for a in ARRAYS if a in self.graph.outputs]
         self._bytes = initializer_bytes(path)
-        self.runtime = f"onnxruntime ({run.run.relative(path)}: transfer and L . t, exported by prt compare)"
+        self.runtime = (f"onnxruntime ({run.run.relative(path)}: {' + '.join(self.arrays)} and L . t, {source}) "
+                        f"+ numpy colour")
         self._light: tuple[int, np.ndarray, dict[str, np.ndarray]] | None = None
-        self.rel_err: float | None = None
-        if len(frames.rows) and (frames.rows >= 0).all() and ARRAY in run.dataset:
-            truth = run.dataset.rows(frames.rows, (ARRAY,))[ARRAY]
-            zero = np.zeros((self.n_light, 3), np.float32)
-            pred = np.concatenate([self._run(frames.features[i:i + 64], zero)[0]
-                                   for i in range(0, frames.n_frames, 64)])
+        self.rel_err: dict[str, float | None] = {a: None for a in self.arrays}
+        if len(frames.rows) and (frames.rows >= 0).all() and all(a in run.dataset for a in self.arrays):
             from prt_torch.fit.transfer import transfer_rel_err
 
-            self.rel_err = transfer_rel_err(pred, truth)
+            truth = run.dataset.rows(frames.rows, tuple(self.arrays))
+            zero = np.zeros((self.n_light, 3), np.float32)
+            outs = [self._run(frames.features[i:i + 64], zero) for i in range(0, frames.n_frames, 64)]
+            for j, a in enumerate(self.arrays):
+                self.rel_err[a] = transfer_rel_err(np.concatenate([o[2 * j] for o in outs]), truth[a])
 
-    def _export(self, run: CompareRun) -> Any:
-        import torch
+    def _graph(self, run: CompareRun) -> tuple[Any, str]:
+        """The graph file: the run's exported ``transfer.onnx`` when it serves this kind and lighting order, else
+        one written into the compare directory (:func:`prt_torch.export.transfer_graph.write_transfer_graph`)."""
+        from prt_torch.export.onnx_file import read_metadata
+        from prt_torch.export.transfer_graph import load_models, write_transfer_graph
+        from prt_torch.export.transfer_shading import exported_transfer
 
-        from prt_torch.export.onnx_file import export_onnx, read_metadata
-        from prt_torch.models import load_model_file
-
+        entry = exported_transfer(run.run)
+        if entry is not None and entry.get("kind") == self.kind_used and entry.get("n_light") == self.n_light:
+            return run.run.inside(entry["file"]), "exported by prt export"
+        arrays = [a for a in ARRAYS if a in self.meta.get("arrays", {})
+                  and run.run.transfer_model_path(self.kind_used, a).is_file()]
         model_file = run.run.transfer_model_path(self.kind_used, ARRAY)
         path = run.run.compare_graph_path(f"{ARRAY}_{self.kind_used}")
-        if path.is_file() and path.stat().st_mtime >= model_file.stat().st_mtime \
-                and read_metadata(path).get("prt.n_light") == str(self.n_light):
-            return path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        model = load_model_file(model_file)
-        export_onnx(radiance_graph(model, self.n_light), [torch.zeros(1, model.n_features),
-                                                           torch.zeros(self.n_light, 3)],
-                    path, ("pose", "light"), (ARRAY, "radiance"),
-                    {"pose": {0: "B"}, ARRAY: {0: "B"}, "radiance": {0: "B"}},
-                    metadata={"prt.graph": f"{ARRAY}+radiance", "prt.model_kind": self.kind_used,
-                              "prt.precision": "fp32", "prt.n_light": str(self.n_light)})
-        return path
+        newest = max(run.run.transfer_model_path(self.kind_used, a).stat().st_mtime for a in arrays)
+        if path.is_file() and path.stat().st_mtime >= newest:
+            md = read_metadata(path)
+            if md.get("prt.n_light") == str(self.n_light) and md.get("prt.arrays") == ",".join(arrays):
+                return path, "written by prt compare"
+        write_transfer_graph(load_models(run.run, self.kind_used, arrays), self.n_light, path,
+                             {"prt.model_kind": self.kind_used, "prt.model_file": run.run.relative(model_file)})
+        return path, "written by prt compare"
 
     def _run(self, features: np.ndarray, light: np.ndarray) -> list[np.ndarray]:
+        """The graph's outputs (per array: transfer, L . t) for ``features (B, A)`` and ``light (n_light, 3)``."""
         return self.graph.run_unchecked({"pose": np.ascontiguousarray(features, dtype=np.float32), "light": light})
 
     def radiance(self, batch: FrameBatch, shading: RadianceRequest) -> dict[str, np.ndarray]:
@@ -154,28 +140,32 @@ class LearnedTransfer(MethodBase):
             src = np.asarray(shading.lighting.sh, dtype=np.float32)[: self.n_light]
             sh[: len(src)] = src
             self._light = (id(shading.lighting), sh, albedo)
-        rad = self._run(batch.features, self._light[1])[1]
-        return {b: rad * a.reshape(1, 1, 3) for b, a in self._light[2].items()}
+        out = self._run(batch.features, self._light[1])
+        return transfer_shading(out[1], self._light[2], out[3] if SSS in self.arrays else None)
 
     def bytes(self) -> int:
         return int(self._bytes)
 
     def info(self) -> dict[str, Any]:
         arr = self.meta["arrays"][ARRAY]
-        return {"kind": self.kind_used, "transfer_rel_err": self.rel_err, "output_pca": arr.get("output_pca"),
-                "reduced_inputs": arr.get("reduced_inputs"), "output_dims": arr.get("output_dims"),
-                "bounces": self.meta.get("bake", {}).get("bounces")}
+        bake = self.meta.get("bake", {})
+        return {"kind": self.kind_used, "transfer_rel_err": self.rel_err.get(ARRAY),
+                "subsurface_rel_err": self.rel_err.get(SSS), "arrays": list(self.arrays),
+                "output_pca": arr.get("output_pca"), "reduced_inputs": arr.get("reduced_inputs"),
+                "output_dims": arr.get("output_dims"), "bounces": bake.get("bounces"),
+                "subsurface": bake.get("subsurface") if SSS in self.arrays else None}
 
 
 class BakedTransfer(MethodBase):
-    """``baked_transfer`` (opt-in): the dataset's own baked transfer of the compared frames, shaded by the same rule
-    (:func:`transfer_radiance`): the ceiling of ``learned_transfer`` (what a perfect regressor would score); held-out
-    dataset frames only."""
+    """``baked_transfer`` (opt-in): the dataset's own baked transfer (and subsurface transfer, when the run learned
+    it, or has no learned transfer and the store has it) of the compared frames, shaded by the same rule
+    (:func:`transfer_radiance`): the ceiling of ``learned_transfer`` (what a perfect regressor would score);
+    held-out dataset frames only."""
 
     name = "baked_transfer"
     output = "radiance"
     default = False
-    runtime = "numpy (baked transfer read ahead) + albedo * (L . t)"
+    runtime = "numpy (baked transfer read ahead) + albedo * (L . t) [+ sss_tint * (L . t_sss)]"
 
     @classmethod
     def available(cls, run: CompareRun) -> bool:
@@ -184,11 +174,19 @@ class BakedTransfer(MethodBase):
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
         check(len(frames.rows) > 0 and bool((frames.rows >= 0).all()),
               "baked_transfer compares baked dataset frames only (not --clip / --motion)")
-        self.t = run.dataset.rows(frames.rows, (ARRAY,))[ARRAY].astype(np.float32)
+        meta = transfer_meta(run)
+        sss = SSS in run.dataset and (meta is None or SSS in meta.get("arrays", {}))
+        data = run.dataset.rows(frames.rows, (ARRAY, SSS) if sss else (ARRAY,))
+        self.t = data[ARRAY].astype(np.float32)
+        self.t_sss = data[SSS].astype(np.float32) if sss else None
 
     def radiance(self, batch: FrameBatch, shading: RadianceRequest) -> dict[str, np.ndarray]:
         albedo = {b: np.asarray(r.tint, dtype=np.float32) for b, r in shading.rpos.items()}
-        return transfer_radiance(self.t[batch.index], shading.lighting.sh, albedo)
+        return transfer_radiance(self.t[batch.index], shading.lighting.sh, albedo,
+                                 None if self.t_sss is None else self.t_sss[batch.index])
+
+    def info(self) -> dict[str, Any]:
+        return {"arrays": [ARRAY] + ([SSS] if self.t_sss is not None else [])}
 
 
 register(LearnedTransfer)
