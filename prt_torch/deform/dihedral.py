@@ -54,21 +54,10 @@ def dihedral_angles(positions: np.ndarray, edges: np.ndarray) -> np.ndarray:
         raise PrtError(f"positions must have shape (..., V, 3), got {x.shape}")
     x = x.astype(_dtype(x), copy=False)
     e = check_edges(edges, x.shape[-2])
-    xt = np.moveaxis(x, -1, 0)  # (3, ..., V): components as separate arrays (np.cross is slow on (..., 3))
-    xi, xj, xk, xl = (xt[..., e[:, c]] for c in range(4))  # each (3, ..., E)
-    ed, ek, dl = xj - xi, xk - xi, xl - xj
-    n1 = _cross(ed, ek)
-    n2 = _cross(-ed, dl)
-    y = _dot(_cross(n2, n1), ed)
-    c = _dot(n1, n2) * np.sqrt(_dot(ed, ed))
-    theta = np.arctan2(y, c)
-    return np.where(theta <= -np.pi, np.asarray(np.pi, theta.dtype), theta).astype(x.dtype, copy=False)
+    if e.shape[0] == 0:
+        return np.zeros((*x.shape[:-2], 0), x.dtype)
+    from prt_torch.deform.dihedral_soa import DihedralSoA  # here: dihedral_soa imports check_edges from this module
 
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product of component-first ``(3, ...)`` arrays."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    v = x.shape[-2]
+    soa = np.moveaxis(x.reshape(-1, v, 3), -1, 1)  # (B, 3, V)
+    return DihedralSoA(e, v)(soa).reshape(*x.shape[:-2], e.shape[0])

@@ -1,7 +1,6 @@
-"""Signed dihedral angles on the player's fast path: float32, vertex-last positions, numpy only.
-
-The rule of :func:`prt_torch.deform.dihedral.dihedral_angles` (see its docstring for the sign convention) in the form
-of the exported graph's :class:`prt_torch.deform.dihedral_torch.DihedralAngles` (tested against both): for an edge
+"""Signed dihedral angles, numpy only: THE numpy rule (:func:`prt_torch.deform.dihedral.dihedral_angles` is this on
+``(..., V, 3)`` positions; see its docstring for the sign convention), in the form of the exported graph's
+:class:`prt_torch.deform.dihedral_torch.DihedralAngles` (tested against both): for an edge
 row ``(i, j, k, l)`` with ``e = x_j - x_i``, ``a = x_k - x_i``, ``b = x_l - x_j`` and ``n1 = e x a``::
 
     theta = atan2(|e| (b . n1), (e . b)(a . e) - (e . e)(a . b))
@@ -26,9 +25,9 @@ from prt_torch.errors import PrtError, check
 
 
 class DihedralSoA:
-    """``positions (B, 3, V)`` float32 -> ``(B, E)`` float32 signed dihedral angles in ``(-pi, pi]`` of the edge
-    rows ``edges (E, 4)`` (module docstring). Fixed data: the corner indices, gathered in one ``take`` per
-    coordinate row."""
+    """``positions (B, 3, V)`` float32 (float64 stays float64) -> ``(B, E)`` signed dihedral angles in
+    ``(-pi, pi]`` of the edge rows ``edges (E, 4)`` (module docstring). Fixed data: the corner indices, gathered
+    in one ``take`` per coordinate row."""
 
     def __init__(self, edges: np.ndarray, n_vertices: int) -> None:
         e = check_edges(np.asarray(edges), int(n_vertices))
@@ -38,11 +37,12 @@ class DihedralSoA:
         self.corners = np.ascontiguousarray(e.astype(np.intp).T.reshape(-1))  # (4E,): the i's, j's, k's, l's
 
     def __call__(self, positions_soa: np.ndarray) -> np.ndarray:
-        p = np.ascontiguousarray(positions_soa, dtype=np.float32)
+        p = np.asarray(positions_soa)
+        p = np.ascontiguousarray(p, dtype=np.float64 if p.dtype == np.float64 else np.float32)  # float64 stays
         v, n = self.n_vertices, self.n_edges
         if p.ndim != 3 or p.shape[1:] != (3, v):
             raise PrtError(f"positions must be (B, 3, {v}), got {p.shape}")
-        out = np.empty((p.shape[0], n), np.float32)
+        out = np.empty((p.shape[0], n), p.dtype)
         for bi in range(p.shape[0]):
             g = [p[bi, c].take(self.corners).reshape(4, n) for c in range(3)]  # x, y, z of the 4 corners
             e = [gc[1] - gc[0] for gc in g]
@@ -79,5 +79,5 @@ class DihedralSoA:
             np.sqrt(ee, out=ee)
             y *= ee
             r = np.arctan2(y, c, out=out[bi])
-            r[r <= -np.pi] = np.float32(np.pi)  # (-pi, pi]: -pi (rounded) -> +pi, like the numpy rule
+            r[r <= -np.pi] = p.dtype.type(np.pi)  # (-pi, pi]: -pi (rounded) -> +pi
         return out

@@ -1,4 +1,4 @@
-"""The player's vertex-last numpy dihedral angles (prt_torch.deform.dihedral_soa) vs the numpy rule and closed forms."""
+"""The numpy dihedral angles (prt_torch.deform.dihedral_soa) vs a per-edge math.atan2 loop and closed forms."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from prt_torch.deform.dihedral import dihedral_angles
 from prt_torch.deform.dihedral_soa import DihedralSoA
 from prt_torch.deform.mesh import interior_edges
 from prt_torch.errors import PrtError
 from tests.deform.sheets import sheet
+from tests.deform.test_dihedral import _reference
 
 
 def _soa(x: np.ndarray) -> np.ndarray:
@@ -19,13 +19,13 @@ def _soa(x: np.ndarray) -> np.ndarray:
 
 
 def test_matches_the_numpy_rule_on_bent_sheets() -> None:
-    """Random bends (several frames at once) == dihedral_angles in float64, to float32 rounding."""
+    """Random bends (several frames at once, float32) == the per-edge math.atan2 reference, to float32 rounding."""
     v, f = sheet(12, 10)
     e = interior_edges(f)
     rng = np.random.default_rng(5)
     x = (v[None] + rng.normal(scale=[0.02, 0.02, 0.15], size=(3, *v.shape))).astype(np.float32)
     got = DihedralSoA(e, v.shape[0])(_soa(x))
-    ref = dihedral_angles(x.astype(np.float64), e)
+    ref = np.array([[_reference(xb.astype(np.float64), row) for row in e.tolist()] for xb in x])
     keep = np.abs(ref) < np.pi - 1e-3  # +-pi folds may land on either side in float32
     assert got.shape == ref.shape and got.dtype == np.float32 and keep.mean() > 0.99
     np.testing.assert_allclose(got[keep], ref[keep], atol=1e-5)
@@ -41,7 +41,8 @@ def test_hinge_angle_closed_form(fold: float) -> None:
     d = DihedralSoA(edges, 4)
     got = float(d(_soa(x[None].astype(np.float32)))[0, 0])
     assert abs(abs(got) - abs(fold)) < 1e-5
-    assert got == pytest.approx(float(dihedral_angles(x, edges)[0]), abs=1e-5)
+    # float64 in stays float64 (the bake's features)
+    assert float(d(_soa(x[None]))[0, 0]) == pytest.approx(got, abs=1e-5)
     q, _ = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))
     q *= np.sign(np.linalg.det(q))
     moved = x @ q.T + np.array([3.0, -2.0, 1.0])
