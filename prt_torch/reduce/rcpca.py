@@ -20,21 +20,34 @@ Algorithm (section 4), poses visited in order ``j = 0 .. P-1``:
   samples, refit the new clusters, repeat; existing members never move).
 * otherwise RECLUSTERING (4.2): pose ``j``'s assigned units are removed from their clusters and all its
   units are clustered afresh by the original CPCA into ``m_cpf`` new clusters.
-* MERGING (4.3): while some pose uses more than ``m_cpf`` clusters, merge the pair of minimal eq. 4
-  distance ``d = ||P_a - P_b||_2 + eta ||M_a - M_b||`` (``P = U U^T``, residue ``M = m - P m``) among the
-  pairs used by one over-budget pose; clusters are merged without the raw data [HMM00].
+* MERGING (4.3): while some pose uses more than ``m_cpf`` clusters, merge the pair of minimal merge cost
+  among the pairs used by one over-budget pose; clusters are merged without the raw data [HMM00].
+  DEVIATION (default ``merge_cost="residual"``): the cost of merging ``a`` and ``b`` is the increase of the
+  truncated residual energy ``E(a + b) - E(a) - E(b)`` (``E`` = scatter trace minus the top ``n_basis``
+  eigenvalues = the squared error of projecting the members onto the cluster's basis), computed exactly from
+  the two eigenspace models (:meth:`RevisedCPCA._residual_increase`): greedy merging then adds the least
+  squared error per merge, the quantity CPCA minimises. The paper's eq. 4 ``d = ||P_a - P_b||_2 + eta
+  ||M_a - M_b||`` (``P = U U^T``, residue ``M = m - P m``) is kept as ``merge_cost="eq4"``. Why: the
+  sine of the largest principal angle between two 8-dim bases is ~1 for almost every pair as soon as one
+  basis direction differs (noise directions of rank < 8 data, or clusters that merge different
+  structures), so eq. 4 ranks pairs by the residue term alone, i.e. by mean distance, which says nothing
+  about whether the union fits 8 basis vectors. Measured: (a) 12 planted rank-4 clusters whose pairs span
+  one 8-dim affine subspace, budget 6 (test ``test_merging_pairs_clusters_whose_union_fits_the_basis``):
+  eq. 4 3.9e4 x the noise floor, residual 1.04 x (exact planted pairs); (b) the ``/tmp/compress/bench.py
+  syn 256 2000 16`` store (P 256 x V 2000 x D 256; its data has 48 planted rank-6 clusters, not the 12
+  its label says: k-means inertia per vertex 143 at k = 12, 0.53 at k = 48 = the planted spread, so a
+  budget of 16 per pose MUST merge different planted clusters): rel SSE 0.436 (eq. 4) -> 0.0109
+  (residual), same ratio 59.0, fit 1123 s vs 414-541 s wall at load 3-7 (the batched ``(2q+1)^2``
+  ``eigvalsh`` per candidate pair dominates). Where the budget suffices (12 planted rank-6 clusters,
+  ``m_cpf`` 16) both reach the noise floor (64 x 480 x 64: 0.952 / 0.952; 256 x 2000 x 256: rel SSE 9.8e-5 /
+  9.8e-5, 216 s / 630 s). Real store (runs/s001, 64 poses x 2000 vertices, m_cpf 64): 0.465 -> 0.0150.
   Option ``refit_before_merge`` (default off; a deviation from "without the raw data"): every cluster's
   model is rebuilt exactly from its members by one more stream before merging (the 4.2 downdates of
-  truncated models drift; no measured gain after the bug fix below: 0.951 vs 0.952).
-  Fixed bug (a cause of planted-cluster losses): the HMM
-  merge built its span by QR without pivoting and dropped columns with small ``diag(R)``, which loses
-  directions when an input is rank-deficient (one-sample models): one-unit clusters got wrong bases
-  and eq. 4 geometry; now an SVD of the span. 12 planted rank-6 clusters, 1 % noise, n_basis 8,
-  m_cpf 16, P 64 x V 480 x D 64: rel SSE / noise floor 1.62 -> 0.95 (exact PCA of the planted
-  memberships: 0.95). NOT fixed: P 256 x V 2000 x D 256 (``/tmp/compress/bench.py syn 256 2000 16``)
-  stays at rel SSE 0.436 (unchanged to 1e-15; with refit + "fro": 0.254): cause still open.
-  ``projector_norm="fro"`` (Frobenius norm of ``P_a - P_b``) is an option, not the
-  default (2.43 before the bug fix, vs 1.37 spectral); ``eta = 0`` gave 6e4 x floor (sine alone is blind).
+  truncated models drift; no measured gain: 0.951 vs 0.952).
+  Fixed bug: the HMM merge built its span by QR without pivoting and dropped columns with small
+  ``diag(R)``, which loses directions when an input is rank-deficient (one-sample models); now an SVD of
+  the span (12 planted rank-6 clusters, P 64 x V 480 x D 64: rel SSE / noise floor 1.62 -> 0.95).
+  eq. 4 options: ``projector_norm="fro"`` (Frobenius norm of ``P_a - P_b``); ``eta = 0`` gave 6e4 x floor.
 * REFIT pass: every final cluster's mean and basis from its final members (second stream, per-pose
   models merged), then the FINAL pass: every sample's coefficients ``c = U (x - m)`` (third stream).
 
@@ -185,20 +198,24 @@ class RevisedCPCA:
     models (None: ``n_basis``); ``max_iter``: CPCA alternations per step (stopping early once at most
     ``tol`` of the units change cluster); ``cache_bytes``: frame cache; ``threads``: BLAS threads during
     :meth:`fit` (None: leave as is); ``projector_norm``: ``"2"`` (paper) or ``"fro"`` in eq. 4;
-    ``refit_before_merge``: exact cluster models from their members before 4.3 (one more stream).
+    ``refit_before_merge``: exact cluster models from their members before 4.3 (one more stream);
+    ``merge_cost``: ``"residual"`` (increase of the truncated residual energy, default) or ``"eq4"`` (the
+    paper's eq. 4 with ``projector_norm`` and ``eta``); see the module docstring for why and the numbers.
     """
 
     def __init__(self, n_basis: int = 8, m_cpf: int = 16, r: float = 2.0, eta: float | None = None,
                  extra: int | None = None, max_iter: int = 8, tol: float = 0.002, seed: int = 0,
                  cache_bytes: int = 64 << 20, threads: int | None = 1, projector_norm: str = "2",
-                 refit_before_merge: bool = False) -> None:
+                 refit_before_merge: bool = False, merge_cost: str = "residual") -> None:
         check(int(n_basis) >= 1, f"rcpca: n_basis must be >= 1, got {n_basis}")
         check(int(m_cpf) >= 1, f"rcpca: m_cpf must be >= 1, got {m_cpf}")
         check(float(r) > 0, f"rcpca: r must be > 0, got {r}")
         check(eta is None or float(eta) >= 0, f"rcpca: eta must be >= 0, got {eta}")
         check(int(max_iter) >= 1, f"rcpca: max_iter must be >= 1, got {max_iter}")
         check(projector_norm in ("fro", "2"), f"rcpca: projector_norm must be 'fro' or '2', got {projector_norm!r}")
+        check(merge_cost in ("residual", "eq4"), f"rcpca: merge_cost must be 'residual' or 'eq4', got {merge_cost!r}")
         self.projector_norm, self.refit_before_merge = projector_norm, bool(refit_before_merge)
+        self.merge_cost = merge_cost
         self.n_basis, self.m_cpf, self.r, self.eta = int(n_basis), int(m_cpf), float(r), eta
         self.q = self.n_basis + (self.n_basis if extra is None else int(extra))
         self.max_iter, self.tol, self.seed, self.cache_bytes = int(max_iter), float(tol), int(seed), int(cache_bytes)
@@ -406,11 +423,53 @@ class RevisedCPCA:
     def _pose_clusters(self, unit: np.ndarray, j: int) -> np.ndarray:
         return np.unique(unit[np.arange(self.n_verts), self.groups_[self.segments_, j]])
 
-    def _geometry(self, m: _Eig) -> tuple[np.ndarray, np.ndarray, bool]:
-        """``(U (nb, D), residue M = m - U^T U m (D,), full rank)`` of a model, as eq. 4 needs them."""
+    def _geometry(self, m: _Eig) -> tuple:
+        """What the merge cost needs of a model: eq. 4 ``(U (nb, D), residue M = m - U^T U m (D,), full rank)``;
+        ``merge_cost="residual"``: ``(vecs (q, D), vals (q,), mean (D,), n, sum of the top nb eigenvalues)``,
+        zero-padded to ``q`` eigenpairs."""
+        if self.merge_cost == "residual":
+            vecs, vals = np.zeros((self.q, m.mean.shape[0])), np.zeros(self.q)
+            k = min(self.q, m.vecs.shape[0])
+            vecs[:k], vals[:k] = m.vecs[:k], m.vals[:k]
+            return vecs, vals, m.mean, m.n, float(vals[: self.n_basis].sum())
         u = _basis(m, self.n_basis)
         full = min(self.n_basis, m.vecs.shape[0]) == self.n_basis and bool((m.vals[: self.n_basis] > 0).all())
         return u, m.mean - u.T @ (u @ m.mean), full
+
+    def _residual_increase(self, ga: tuple, gb: list[tuple]) -> np.ndarray:
+        """Merge cost ``merge_cost="residual"``: the increase of the truncated residual energy when ``a`` and each
+        ``b`` are merged, ``E(a + b) - E(a) - E(b)`` with ``E = trace - sum of the top n_basis eigenvalues``.
+
+        The merged scatter is ``S = V_a^T L_a V_a + V_b^T L_b V_b + c d d^T`` (``d = m_a - m_b``,
+        ``c = n_a n_b / (n_a + n_b)``) = ``B W B^T`` with ``B = [V_a^T, V_b^T, d]``, ``W = diag(L_a, L_b, c)``;
+        its non-zero eigenvalues are those of the small ``W^1/2 (B^T B) W^1/2`` (batched ``eigvalsh``), and the
+        traces cancel: cost = ``top(a) + top(b) + c |d|^2 - top(a + b)``. Exact for exact models (the models keep
+        ``q = n_basis + extra`` eigenpairs).
+        """
+        va, la, ma, na, ta = ga
+        vb = np.stack([g[0] for g in gb])
+        lb = np.stack([g[1] for g in gb])
+        mb = np.stack([g[2] for g in gb])
+        nbv = np.array([g[3] for g in gb])
+        tb = np.array([g[4] for g in gb])
+        d = ma[None] - mb
+        c = na * nbv / (na + nbv)
+        k, q = vb.shape[0], va.shape[0]
+        m = 2 * q + 1
+        gram = np.empty((k, m, m))
+        gram[:, :q, :q] = va @ va.T
+        gram[:, :q, q:2 * q] = np.einsum("nd,kmd->knm", va, vb)
+        gram[:, q:2 * q, :q] = gram[:, :q, q:2 * q].transpose(0, 2, 1)
+        gram[:, q:2 * q, q:2 * q] = np.einsum("knd,kmd->knm", vb, vb)
+        gram[:, :q, -1] = d @ va.T
+        gram[:, q:2 * q, -1] = np.einsum("knd,kd->kn", vb, d)
+        gram[:, -1, :2 * q] = gram[:, :2 * q, -1]
+        dd = np.einsum("kd,kd->k", d, d)
+        gram[:, -1, -1] = dd
+        w = np.sqrt(np.maximum(np.concatenate([np.broadcast_to(la, (k, q)), lb, c[:, None]], axis=1), 0.0))
+        lam = np.linalg.eigvalsh(gram * w[:, :, None] * w[:, None, :])
+        top = lam[:, -self.n_basis:].sum(axis=1)
+        return np.maximum(ta + tb + c * dd - top, 0.0)
 
     def _distances(self, ga: tuple, gb: list[tuple]) -> np.ndarray:
         """Eq. 4 from cluster ``a`` to each ``b``: ``||P_a - P_b|| + eta ||M_a - M_b||`` (from :meth:`_geometry`).
@@ -464,7 +523,8 @@ class RevisedCPCA:
                         seen.add(key)
                         todo.append(b)
                 if todo:
-                    dist = self._distances(geom[a], [geom[b] for b in todo])
+                    cost = self._residual_increase if self.merge_cost == "residual" else self._distances
+                    dist = cost(geom[a], [geom[b] for b in todo])
                     for b, dd in zip(todo, dist, strict=True):
                         x, y = (a, b) if a < b else (b, a)
                         heapq.heappush(heap, (float(dd), x, y, version[x], version[y]))

@@ -114,7 +114,7 @@ def test_merging_single_sample_models_spans_the_data() -> None:
 @pytest.mark.parametrize("norm", ["fro", "2"])
 def test_eq4_distance_matches_explicit_projection_matrices(norm: str) -> None:
     rng = np.random.default_rng(2)
-    m = RevisedCPCA(n_basis=3, eta=0.7, projector_norm=norm)
+    m = RevisedCPCA(n_basis=3, eta=0.7, projector_norm=norm, merge_cost="eq4")
     m._eta = 0.7
     models = [rcpca._eig_from(rng.normal(size=(20, 7)) * rng.uniform(0.5, 2, 7) + rng.normal(size=7), 6)
               for _ in range(4)]
@@ -126,6 +126,47 @@ def test_eq4_distance_matches_explicit_projection_matrices(norm: str) -> None:
         ma, mb = models[0].mean - pa @ models[0].mean, e.mean - pb @ e.mean
         ref = np.linalg.norm(pa - pb, "fro" if norm == "fro" else 2)
         assert ours[i] == pytest.approx(ref + 0.7 * np.linalg.norm(ma - mb), rel=1e-9)
+
+
+def test_residual_merge_cost_matches_direct_pca_of_the_union() -> None:
+    """``merge_cost="residual"``: E(a + b) - E(a) - E(b), E = squared residual outside the top n_basis principal
+    directions, from the eigenspace models only; reference: SVDs of the raw samples (models keep all D pairs)."""
+    rng = np.random.default_rng(7)
+    m = RevisedCPCA(n_basis=3, extra=7)  # q = 10 = D: exact models
+
+    def resid(x: np.ndarray) -> float:
+        return float((np.linalg.svd(x - x.mean(0), compute_uv=False)[3:] ** 2).sum())
+
+    a = rng.normal(size=(30, 10)) * rng.uniform(0.2, 2, 10) + rng.normal(size=10)
+    bs = [rng.normal(size=(n, 10)) * rng.uniform(0.2, 2, 10) + rng.normal(size=10) for n in (1, 4, 25)]
+    ours = m._residual_increase(m._geometry(rcpca._eig_from(a, 10)), [m._geometry(rcpca._eig_from(b, 10)) for b in bs])
+    ref = [resid(np.concatenate([a, b])) - resid(a) - resid(b) for b in bs]
+    np.testing.assert_allclose(ours, ref, rtol=1e-8)
+
+
+def test_merging_pairs_clusters_whose_union_fits_the_basis() -> None:
+    """4.3 on 12 planted rank-4 clusters, budget 6: the two halves of a planted pair span one 8-dim affine subspace
+    (their union fits 8 basis vectors exactly), any other union needs 9. The paper's eq. 4 (``merge_cost="eq4"``)
+    sees sin(angle) ~ 1 for every pair and merges by mean distance (3.9e4 x the noise floor here); the residual
+    cost must merge exactly the planted pairs and leave only the noise outside them."""
+    rng = np.random.default_rng(0)
+    d, n, n_pairs, sep = 25, 200, 6, 2.0
+    models = []
+    for _ in range(n_pairs):
+        q = np.linalg.qr(rng.normal(size=(d, 8)))[0].T
+        o = rng.normal(size=d)
+        for s, b in ((sep, q[:4]), (-sep, q[4:])):
+            x = o + s * q[0] + rng.normal(size=(n, 4)) @ b + NOISE * rng.normal(size=(n, d))
+            models.append(rcpca._eig_from(x, 16))
+    k = 2 * n_pairs
+    m = RevisedCPCA(n_basis=8, m_cpf=n_pairs)
+    m.n_poses, m.n_verts, m.segments_, m.groups_ = 1, k, np.zeros(k, np.int64), np.zeros((1, 1), np.int64)
+    unit = np.arange(k)[:, None].copy()  # one pose using all 12 clusters: 6 merges needed
+    assert m._merge(models, unit) == n_pairs
+    np.testing.assert_array_equal(unit[:, 0] // 2, np.repeat(unit[::2, 0], 2) // 2)  # each cluster = one pair
+    assert np.unique(unit).size == n_pairs
+    floor = NOISE ** 2 * (d - 8) * n * k
+    assert sum(rcpca._residual(e, 8) for e in models if e is not None) <= 1.2 * floor
 
 
 class _OnePoseReader:
