@@ -56,8 +56,10 @@ DEFAULT_PRECISION = "int8"
 BASIS_PATTERN = r"basis_\d+$"
 
 #: ONNX vs torch parity tolerance (relative to the output's max) per precision: the int8 reference rounds its
-#: GEMM inputs as onnxruntime does; float16 GEMMs accumulate differently in torch and onnxruntime
-PARITY_RTOL_BY_PRECISION = {"fp32": 1e-4, "fp16": 3e-3, "int8": 1e-4}
+#: GEMM inputs as onnxruntime does, but a float32 rounding difference upstream can move an activation across a
+#: quantisation tie (one step = 1/255 of its range): 5.8e-4 measured on the 7.7k flag (185 components per
+#: cluster); float16 GEMMs accumulate differently in torch and onnxruntime
+PARITY_RTOL_BY_PRECISION = {"fp32": 1e-4, "fp16": 3e-3, "int8": 1e-3}
 
 #: default BRDFs exported with every run (:func:`prt_torch.brdf.rpo.builtin_rpo` names)
 DEFAULT_BRDFS = ("lambert", "phong", "ggx", "ward")
