@@ -54,7 +54,7 @@ def ablations(ev: Evaluation, meta: dict[str, Any]) -> dict[str, Any]:
         zp = _linear_predict(x_tr, o.reduce(train.visibility), x_te, np.array([lin_alpha]))[0]
         lin.append(vis_rel_err(o.expand(zp), test.visibility))
     res["error_vs_variance"] = {"PCA reconstruction floor": floor, f"linear (alpha {lin_alpha:.3g})": lin}
-    o = out.truncated(tcfg["output_variance"])
+    o = out.truncated(tcfg["output_variance"], tcfg.get("output_max_components"))
     alphas = np.concatenate([[0.0], np.logspace(-4, 5, 10)])
     z_tr = o.reduce(train.visibility)
     ptr = _linear_predict(x_tr, z_tr, x_tr, alphas)

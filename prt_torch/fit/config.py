@@ -85,6 +85,7 @@ class TrainConfig(BaseModel):
     default_kind: str = "mlp"
     input_variance: float = Field(default=0.90, gt=0, le=1)
     output_variance: float = Field(default=0.95, gt=0, le=1)
+    output_max_components: int | None = Field(default=None, ge=1, le=L.MAX_NEURONS)  # per cluster: caps model size
     output_pca: Literal["cluster", "global"] = "cluster"  # per-cluster (seed 003) or global (seed 000 sec. 5)
     # per-cluster inputs of linear and mlp: "pca" = the shared input PCA (seed 003), "joints" = standardised 6D
     # of the joints skinning the cluster + their parents (needs character.npz beside the dataset; prt_torch.fit.inputs)

@@ -104,7 +104,8 @@ def reduce_training(train: SplitData, cluster: np.ndarray, cfg: TrainConfig,
     if cfg.output_pca == "global":
         out: ClusterPCA | GlobalOutputPCA = GlobalOutputPCA.fit(train.visibility, variance=cfg.output_variance)
     else:
-        out = ClusterPCA.fit(train.visibility, cluster, variance=cfg.output_variance)
+        out = ClusterPCA.fit(train.visibility, cluster, variance=cfg.output_variance,
+                             max_components=cfg.output_max_components)
     folds = blocked_folds(train.clip_id, train.frame_index, cfg.folds, train_only)
     sel = xs = None
     if skinning is not None:
@@ -354,6 +355,8 @@ def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
         settings.pop("transfer", None)
     if settings.get("s001") is None:  # likewise train.s001 (seed 001 compressed transfer matrices)
         settings.pop("s001", None)
+    if settings.get("output_max_components") is None:  # likewise the output size cap
+        settings.pop("output_max_components", None)
     device = resolve_device(cfg.device)
     if device != "cpu":
         settings["device"] = device

@@ -60,8 +60,10 @@ class ClusterPCA:
     variance: float
 
     @classmethod
-    def fit(cls, y: np.ndarray, cluster: np.ndarray, variance: float = 0.95) -> ClusterPCA:
-        """Fit on training visibility ``y (F, V, C)`` with vertex labels ``cluster (V,)``."""
+    def fit(cls, y: np.ndarray, cluster: np.ndarray, variance: float = 0.95,
+            max_components: int | None = None) -> ClusterPCA:
+        """Fit on training visibility ``y (F, V, C)`` with vertex labels ``cluster (V,)``; ``max_components``:
+        at most this many components per cluster (the model's size: ``V C k`` basis weights)."""
         y = check_visibility(y)
         f, v, c = y.shape
         labels = check_clusters(cluster, v)
@@ -69,7 +71,8 @@ class ClusterPCA:
         members = [np.flatnonzero(labels == g) for g in range(int(labels.max()) + 1)]
         pcas = [PCA.fit(y[:, m, :].reshape(f, -1), variance=variance, name=f"visibility of cluster {g}")
                 for g, m in enumerate(members)]
-        return cls(n_vertices=v, n_coeffs=c, members=members, pcas=pcas, variance=float(variance))
+        out = cls(n_vertices=v, n_coeffs=c, members=members, pcas=pcas, variance=float(variance))
+        return out if max_components is None else out.truncated(variance, max_components)
 
     @property
     def n_groups(self) -> int:
@@ -98,11 +101,15 @@ class ClusterPCA:
             out[m] = p.mean.reshape(len(m), self.n_coeffs)
         return out
 
-    def truncated(self, variance: float) -> ClusterPCA:
-        """The same fit keeping ``variance`` of each cluster's variance instead."""
+    def truncated(self, variance: float, max_components: int | None = None) -> ClusterPCA:
+        """The same fit keeping ``variance`` of each cluster's variance instead, and at most ``max_components``
+        components per cluster."""
+        check(max_components is None or int(max_components) >= 1,
+              f"output max_components must be >= 1, got {max_components}")
         pcas = []
         for p in self.pcas:
             k = components_for_variance(p.explained, variance)
+            k = k if max_components is None else min(k, int(max_components))
             if k > p.n_components:
                 raise PrtError(f"cannot raise retained variance above the fitted {self.variance} without refitting")
             total = float(p.explained.sum())

@@ -121,3 +121,24 @@ def test_global_unprojection_matches_numpy_expand() -> None:
     mod = GlobalUnprojection(p.components * p.scale[:, None], mean, y.shape[1], y.shape[2])
     got = mod(torch.as_tensor(z, dtype=torch.float32)).numpy()
     np.testing.assert_allclose(got, g.expand(z), atol=1e-4)
+
+
+def test_cluster_pca_max_components_caps_each_cluster_like_sklearn() -> None:
+    """``max_components`` keeps min(variance count, cap) components per cluster; the capped reconstruction of each
+    cluster equals scikit-learn's PCA with that many components."""
+    rng = np.random.default_rng(3)
+    f, v, c = 40, 30, 4
+    y = rng.normal(size=(f, v, c)) @ np.diag([1.0, 0.5, 0.3, 0.1])
+    cluster = np.repeat(np.arange(3), 10)
+    free = ClusterPCA.fit(y, cluster, variance=0.99)
+    capped = ClusterPCA.fit(y, cluster, variance=0.99, max_components=5)
+    np.testing.assert_array_equal(capped.dims, np.minimum(free.dims, 5))
+    assert (free.dims > 5).all()  # the cap binds
+    rec = capped.expand(capped.reduce(y))
+    for g in range(3):
+        m = cluster == g
+        sk = SkPCA(n_components=5).fit(y[:, m].reshape(f, -1))
+        ref = sk.inverse_transform(sk.transform(y[:, m].reshape(f, -1))).reshape(f, -1, c)
+        np.testing.assert_allclose(rec[:, m], ref, atol=1e-8)
+    with pytest.raises(PrtError, match="max_components"):
+        ClusterPCA.fit(y, cluster, variance=0.99, max_components=0)
