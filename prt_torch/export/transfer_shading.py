@@ -26,6 +26,8 @@ from prt_torch.rundir import file_sha256
 
 #: the learned arrays a transfer graph may carry, in output order
 ARRAYS: tuple[str, ...] = ("transfer", "subsurface")
+
+
 def radiance_output(array: str) -> str:
     """The graph output holding ``L . <array>``: ``radiance`` for ``transfer``, ``<array>_radiance`` else."""
     return "radiance" if array == "transfer" else f"{array}_radiance"
@@ -55,6 +57,15 @@ def light_dot(t: Any, light_sh: Any) -> np.ndarray:
     return np.matmul(t[..., :c], light_sh[:c])
 
 
+def light_input(light_sh: Any, n_light: int) -> np.ndarray:
+    """``(n_light, 3)`` float32: the graph's ``light`` input from world-frame SH lighting ``light_sh (C, 3)``,
+    its first ``n_light`` coefficients, zero padded when it has fewer."""
+    src = np.asarray(light_sh, dtype=np.float32)[:n_light]
+    out = np.zeros((n_light, 3), np.float32)
+    out[: len(src)] = src
+    return out
+
+
 def transfer_shading(radiance: Any, albedo: dict[str, Any], sss_radiance: Any = None) -> dict[str, np.ndarray]:
     """``{brdf: (B, V, 3)}`` float32 ``albedo * (L . t) + subsurface_tint(albedo) * (L . t_sss)`` (the module's
     rule) from the unit-albedo ``radiance = L . t (B, V, 3)`` and, when the run has it, ``sss_radiance = L . t_sss``
@@ -77,7 +88,6 @@ def transfer_shading(radiance: Any, albedo: dict[str, Any], sss_radiance: Any = 
 def exported_transfer(run: Any) -> dict[str, Any] | None:
     """``export.json``'s verified ``transfer`` entry of an exported run (None: not exported with one, or exported
     from another ``transfer.json`` than the run's current one: a retrained run needs ``prt export``)."""
-
     if not run.export_json.is_file():
         return None
     try:

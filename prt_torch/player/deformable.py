@@ -192,6 +192,14 @@ class DeformablePlayer(Player):
         g = graph or self.bundle.graphs["visibility"]
         return g.run_unchecked({"pose": self.pose_features(positions_soa, body)})[0]
 
+    def _visibility(self, positions: np.ndarray, positions_soa: np.ndarray, body: np.ndarray | None,
+                    graph: OrtGraph | None = None) -> np.ndarray:
+        """``(B, V, C)`` visibility by the player's ``features`` mode (numpy angles + the pose graph, or
+        ``positions.onnx``); ``graph``: another session of that file (the overlap worker's)."""
+        if self.features == "graph":
+            return (graph or self.positions_graph).run_unchecked(self._vis_feeds(positions, body))[0]
+        return self._visibility_numpy(positions_soa, body, graph)
+
     def _vis_feeds(self, positions: np.ndarray, body: np.ndarray | None) -> dict[str, np.ndarray]:
         feeds = {"positions": np.ascontiguousarray(positions, dtype=np.float32)}
         if self.n_body:
@@ -242,20 +250,14 @@ class DeformablePlayer(Player):
                 path = self.positions_graph.path if self.features == "graph" else \
                     self.bundle.graphs["visibility"].path
                 self._vis_overlap = OrtGraph(path, threads=1, spinning=self._spinning, device=self.device)
-            if self.features == "graph":
-                fut = self._pool.submit(lambda: self._vis_overlap.run_unchecked(self._vis_feeds(positions, body))[0])
-            else:
-                fut = self._pool.submit(self._visibility_numpy, positions_soa, body, self._vis_overlap)
+            fut = self._pool.submit(self._visibility, positions, positions_soa, body, self._vis_overlap)
             state = self.frames(positions_soa)
             t1 = time.perf_counter()
             vis = fut.result()
         else:
             state = self.frames(positions_soa)
             t1 = time.perf_counter()
-            if self.features == "graph":
-                vis = self.positions_graph.run_unchecked(self._vis_feeds(positions, body))[0]
-            else:
-                vis = self._visibility_numpy(positions_soa, body)
+            vis = self._visibility(positions, positions_soa, body)
         t2 = time.perf_counter()
         out = self.shade(state, visibility=vis, checked=False)
         if timer is not None:

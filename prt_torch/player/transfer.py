@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError, check
-from prt_torch.export.transfer_shading import radiance_output, transfer_shading
+from prt_torch.export.transfer_shading import ARRAYS, light_input, radiance_output, transfer_shading
 from prt_torch.player.player import Player
 from prt_torch.player.timing import FrameTimer
 from prt_torch.rundir import RunDir
@@ -54,7 +54,7 @@ class TransferPlayer(Player):
         path = run.inside(entry["file"])
         check(path is not None and path.is_file(), f"{run.path}: transfer graph {entry['file']!r} missing")
         self.transfer_graph = OrtGraph(path, threads=threads, spinning=spinning, device=device)
-        self.arrays = [a for a in ("transfer", "subsurface") if a in self.transfer_graph.outputs]
+        self.arrays = [a for a in ARRAYS if a in self.transfer_graph.outputs]
         self._outputs = [radiance_output(a) for a in self.arrays]
         self.n_light = int(entry.get("n_light", self.order**2))
         check(self.transfer_graph.inputs.get("light", (None,))[0] == self.n_light,
@@ -65,10 +65,7 @@ class TransferPlayer(Player):
         """``(n_light, 3)`` float32 world-frame SH lighting: the player's, rotated by :attr:`light_angle`
         (zero-padded / cut to the graph's ``n_light``)."""
         lit = self.lighting.rotated_about_z(self.light_angle) if self.light_angle else self.lighting
-        src = np.asarray(lit.sh, np.float32)[: self.n_light]
-        out = np.zeros((self.n_light, 3), np.float32)
-        out[: len(src)] = src
-        return out
+        return light_input(lit.sh, self.n_light)
 
     def transfer_radiance(self, features: np.ndarray) -> list[np.ndarray]:
         """``[L . t, (L . t_sss)]`` ``(B, V, 3)`` of pose features ``(B, A)`` (only these outputs are fetched)."""

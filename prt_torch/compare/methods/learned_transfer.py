@@ -30,7 +30,7 @@ import numpy as np
 
 from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
 from prt_torch.errors import PrtError, check
-from prt_torch.export.transfer_shading import ARRAYS, light_dot, transfer_shading
+from prt_torch.export.transfer_shading import ARRAYS, light_dot, light_input, transfer_shading
 
 ARRAY = "transfer"
 SSS = "subsurface"
@@ -136,10 +136,7 @@ class LearnedTransfer(MethodBase):
     def radiance(self, batch: FrameBatch, shading: RadianceRequest) -> dict[str, np.ndarray]:
         if self._light is None or self._light[0] != id(shading.lighting):
             albedo = {b: np.asarray(r.tint, dtype=np.float32) for b, r in shading.rpos.items()}
-            sh = np.zeros((self.n_light, 3), np.float32)  # the lighting's first n_light coefficients (zero padded)
-            src = np.asarray(shading.lighting.sh, dtype=np.float32)[: self.n_light]
-            sh[: len(src)] = src
-            self._light = (id(shading.lighting), sh, albedo)
+            self._light = (id(shading.lighting), light_input(shading.lighting.sh, self.n_light), albedo)
         out = self._run(batch.features, self._light[1])
         return transfer_shading(out[1], self._light[2], out[3] if SSS in self.arrays else None)
 
