@@ -21,6 +21,7 @@ from prt_torch.bake.store import open_dataset
 from prt_torch.config import config_from_dict
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import sh_basis
+from tests.raycast import rays_hit
 
 RESULT_ARRAYS = ("positions", "normals", "frames", "visibility", "done", "pose", "clip_id", "frame_index", "cluster",
                  "cluster_axis", "cluster_bone", "faces")
@@ -80,18 +81,7 @@ def test_dataset_layout_and_basic_properties(reference: tuple[Path, dict[str, np
 
 def moller_trumbore_any(origin: np.ndarray, dirs: np.ndarray, tri: np.ndarray) -> np.ndarray:
     """Brute force: does each ray ``origin + s dirs[r]`` (s > 0) hit any triangle ``tri (T, 3, 3)``? -> (R,) bool."""
-    e1 = tri[:, 1] - tri[:, 0]
-    e2 = tri[:, 2] - tri[:, 0]
-    p = np.cross(dirs[:, None, :], e2[None])  # (R, T, 3)
-    det = np.einsum("rtk,tk->rt", p, e1)
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    tvec = origin - tri[:, 0]  # (T, 3)
-    u = np.einsum("rtk,tk->rt", p, tvec) * inv
-    q = np.cross(tvec, e1)  # (T, 3)
-    v = np.einsum("rk,tk->rt", dirs, q) * inv
-    s = np.einsum("tk,tk->t", e2, q)[None] * inv
-    return np.any(ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (s > 0), axis=1)
+    return rays_hit(origin, dirs, tri, t_min=0.0).any(axis=1)
 
 
 def test_visibility_matches_independent_ray_casting(reference: tuple[Path, dict[str, np.ndarray]]) -> None:

@@ -25,6 +25,7 @@ from prt_torch.config import config_from_dict
 from prt_torch.errors import PrtError
 from prt_torch.rig.character import Character
 from prt_torch.rundir import RunDir
+from tests.raycast import rays_hit
 
 Y00 = 0.5 / np.sqrt(np.pi)
 NU, NW = 25, 13  # fold sheet grid: NU across the fold (u in [-1, 1]), NW along it (w in [-1.5, 1.5])
@@ -45,22 +46,6 @@ def grid_faces() -> np.ndarray:
     idx = np.arange(NU * NW).reshape(NU, NW)
     a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
     return np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
-
-
-def rays_hit(origin: np.ndarray, dirs: np.ndarray, tri: np.ndarray, t_min: float = 1e-6) -> np.ndarray:
-    """``(R, T)`` whether each ray ``origin + t dirs`` (t > t_min) hits each triangle of ``tri (T, 3, 3)``:
-    Moller-Trumbore, plain numpy, all rays x all triangles (the independent reference of the bake's Embree)."""
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    pv = np.cross(dirs[:, None], e2[None])  # (R, T, 3)
-    det = np.einsum("rtk,tk->rt", pv, e1)
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    tv = origin - tri[:, 0]  # (T, 3)
-    u = np.einsum("rtk,tk->rt", pv, tv) * inv
-    qv = np.cross(tv, e1)  # (T, 3)
-    v = np.einsum("rk,tk->rt", dirs, qv) * inv
-    t = np.einsum("tk,tk->t", e2, qv)[None] * inv
-    return ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > t_min)
 
 
 def sheet_character(rest: np.ndarray, faces: np.ndarray) -> Character:
