@@ -287,16 +287,11 @@ def test_player_transfer_radiance_is_numpy_dot_of_torch_transfer(tiny_run: Path,
 
 def test_play_transfer_command_without_torch(tiny_run: Path, exported: dict[str, Any], tmp_path: Path) -> None:
     """``prt play --renderer transfer`` writes frames and timings in a process that never imports torch."""
-    import subprocess
-    import sys
+    from tests.torchfree import run_cli_without_torch
 
     png, timings = tmp_path / "png", tmp_path / "t.json"
-    code = ("import sys\nfrom prt_torch.cli import main\n"
-            f"rc = main(['play', {str(tiny_run)!r}, '--clip', 'wave', '--renderer', 'transfer', '--max-frames', '2', "
-            f"'--size', '96x128', '--png', {str(png)!r}, '--timings', {str(timings)!r}, '--threads', '1'])\n"
-            "assert rc == 0, rc\nassert 'torch' not in sys.modules, 'torch imported'\nprint('ok')")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0 and "ok" in r.stdout, r.stderr[-2000:]
+    run_cli_without_torch(["play", str(tiny_run), "--clip", "wave", "--renderer", "transfer", "--max-frames", "2",
+                           "--size", "96x128", "--png", str(png), "--timings", str(timings), "--threads", "1"])
     frames = sorted(png.glob("frame_*.png"))
     assert len(frames) == 2
     t = json.loads(timings.read_text())

@@ -9,14 +9,13 @@ procedural sky's SH and the catalogue BRDF's matrix factors.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from prt_torch.errors import PrtError
+from tests.torchfree import run_cli_without_torch
 
 
 @pytest.mark.parametrize("scheme", ["s001", "posespace"])
@@ -59,12 +58,8 @@ def test_play_radiance_is_shade_matrix_of_interpolated_matrices(s001_run: tuple[
 def test_play_command_writes_frames_without_torch(s001_run: tuple[Path, Path], tmp_path: Path) -> None:
     _, run = s001_run
     png, timings = tmp_path / "png", tmp_path / "t.json"
-    code = ("import sys\nfrom prt_torch.cli import main\n"
-            f"rc = main(['play', {str(run)!r}, '--clip', 'wave', '--renderer', 's001', '--max-frames', '2', "
-            f"'--size', '96x128', '--png', {str(png)!r}, '--timings', {str(timings)!r}, '--light-angle', '30'])\n"
-            "assert rc == 0, rc\nassert 'torch' not in sys.modules, 'torch imported'\nprint('ok')")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0 and "ok" in r.stdout, r.stderr[-2000:]
+    run_cli_without_torch(["play", str(run), "--clip", "wave", "--renderer", "s001", "--max-frames", "2",
+                           "--size", "96x128", "--png", str(png), "--timings", str(timings), "--light-angle", "30"])
     import imageio.v2 as iio
 
     frames = sorted(png.glob("frame_*.png"))
