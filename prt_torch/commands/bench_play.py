@@ -409,7 +409,7 @@ def _precision_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, 
 
     from prt_torch.export.graphs import VisibilityGraph
     from prt_torch.export.onnx_file import export_onnx
-    from prt_torch.export.run import BASIS_PATTERN, _per_cluster
+    from prt_torch.export.run import _per_cluster, lowering
     from prt_torch.models.visibility import load_model
     from prt_torch.runtime.session import OrtGraph
 
@@ -422,7 +422,7 @@ def _precision_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, 
         g = VisibilityGraph(model, cluster_sorted=True, precision=p).eval()
         path = tmp / f"visibility_{p}.onnx"
         export_onnx(g, [torch.zeros(1, model.n_features)], path, ("pose",), ("visibility",),
-                    {"pose": {0: "B"}, "visibility": {0: "B"}}, int8_weights=BASIS_PATTERN if p == "int8" else None)
+                    {"pose": {0: "B"}, "visibility": {0: "B"}}, **lowering(p))
         out[p] = OrtGraph(path, threads=threads, device=device)
     return out
 
@@ -510,7 +510,7 @@ def _scaling(run: Any, player: Any, args: argparse.Namespace, bw: float, gemm: f
 
     from prt_torch.export.graphs import FUSED_INPUTS, FusedGraph
     from prt_torch.export.onnx_file import export_onnx, initializer_bytes, weight_macs
-    from prt_torch.export.run import BASIS_PATTERN
+    from prt_torch.export.run import lowering
     from prt_torch.models.visibility import load_model
     from prt_torch.player.posing import Poser
     from prt_torch.rig.builtin import make_character
@@ -535,7 +535,7 @@ def _scaling(run: Any, player: Any, args: argparse.Namespace, bw: float, gemm: f
             b = {0: "B"}
             export_onnx(fused, [ex[k] for k in FUSED_INPUTS], path, FUSED_INPUTS, ("radiance",),
                         {"pose": b, "frames": b, "view_dirs": b, "radiance": b},
-                        int8_weights=BASIS_PATTERN if prec == "int8" else None)
+                        **lowering(prec))
             poser = Poser(ch, labels, cluster_axes(ch.rest_vertices, labels), cluster_bones(ch.dense_weights, labels),
                           order=fused.vertex_order)
             cases.append({"density": d, "ch": ch, "graph": OrtGraph(path, threads=args.threads, device=args.device),

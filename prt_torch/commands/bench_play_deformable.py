@@ -49,7 +49,7 @@ def _positions_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, 
     from prt_torch.export.deformable import graph_input_names, positions_graph_module
     from prt_torch.export.graphs import VisibilityGraph
     from prt_torch.export.onnx_file import export_onnx
-    from prt_torch.export.run import BASIS_PATTERN, _per_cluster
+    from prt_torch.export.run import _per_cluster, lowering
     from prt_torch.models.visibility import load_model
     from prt_torch.runtime.session import OrtGraph
 
@@ -64,7 +64,7 @@ def _positions_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, 
         module = positions_graph_module(VisibilityGraph(model, precision=p).eval(), d.edges, d.n_body_features)
         path = tmp / f"positions_{p}.onnx"
         export_onnx(module, [rest, torch.zeros(1, d.n_body_features)][:len(names)], path, names, ("visibility",),
-                    {k: {0: "B"} for k in (*names, "visibility")}, int8_weights=BASIS_PATTERN if p == "int8" else None)
+                    {k: {0: "B"} for k in (*names, "visibility")}, **lowering(p))
         out[p] = OrtGraph(path, threads=threads, device=device)
     return out
 

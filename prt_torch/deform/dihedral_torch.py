@@ -60,8 +60,9 @@ class DihedralAngles(nn.Module):
         e = check_edges(e, nv)
         check(e.shape[0] > 0, "DihedralAngles: no edges")
         self.n_edges = int(e.shape[0])
-        # (4E,): the i's, then the j's, k's and l's
-        self.register_buffer("corners", torch.as_tensor(e.astype(np.int64).T.reshape(-1).copy()))
+        # (4E,): the i's, then the j's, k's and l's; int32 (half the bytes of the exported graph's Gather indices)
+        check(nv < 2**31, f"DihedralAngles: {nv} vertices do not fit int32 indices")
+        self.register_buffer("corners", torch.as_tensor(e.astype(np.int32).T.reshape(-1).copy()))
 
     @property
     def edges(self) -> torch.Tensor:

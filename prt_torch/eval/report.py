@@ -39,7 +39,8 @@ def ablations(ev: Evaluation, meta: dict[str, Any]) -> dict[str, Any]:
     assert ds is not None
     tcfg = meta["train_config"]
     train = ds.split("train", max_frames=400)
-    inp = PCA.fit(train.pose, variance=tcfg["input_variance"], whiten=tcfg["whiten_inputs"])
+    inp = PCA.fit(train.pose, variance=tcfg["input_variance"], whiten=tcfg["whiten_inputs"],
+                  max_components=tcfg.get("input_max_components"))
     x_tr = inp.reduce(train.pose)
     test = ev.splits.get("heldout") or ev.splits["train"]
     x_te = inp.reduce(test.pose)

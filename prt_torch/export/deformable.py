@@ -178,7 +178,7 @@ def graph_input_names(n_body_features: int) -> tuple[str, ...]:
 
 def ship_deformable(run: RunDir, spec: DeformSpec, vis_graph: Any, held: dict[str, np.ndarray],
                     base_meta: dict[str, Any], rtol: float, opset: int = 17, exporter: str = "torchscript",
-                    int8_pattern: str | None = None, fused_graph: Any = None,
+                    lowered: dict[str, str | None] | None = None, fused_graph: Any = None,
                     fused_inputs: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
     """Write the deform data and the positions-in graph of a deformable run; check them. Returns the
     ``export.json`` ``deformable`` entry.
@@ -227,7 +227,7 @@ def ship_deformable(run: RunDir, spec: DeformSpec, vis_graph: Any, held: dict[st
             "prt.n_edges": int(edges.shape[0]), "prt.n_body_features": nb,
             "prt.positions": "positions input (B, V, 3) world, subject vertices (body then cloth for the cape)"}
     export_onnx(module, args, path, names, ("visibility",), {**{k: batch for k in names}, "visibility": batch},
-                metadata=meta, opset=opset, exporter=exporter, int8_weights=int8_pattern)
+                metadata=meta, opset=opset, exporter=exporter, **(lowered or {}))
     from prt_torch.export.run import _emulate_int8
 
     _emulate_int8(module, True)
@@ -249,7 +249,7 @@ def ship_deformable(run: RunDir, spec: DeformSpec, vis_graph: Any, held: dict[st
                                                                  "prt.vertex_order": "cluster"
                                                                  if fused_graph.vertex_order is not None
                                                                  else "original"},
-                    opset=opset, exporter=exporter, int8_weights=int8_pattern)
+                    opset=opset, exporter=exporter, **(lowered or {}))
         _emulate_int8(fmod, True)
         try:
             fp = check_parity(fmod, fpath, finputs, rtol=rtol)

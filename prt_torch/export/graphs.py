@@ -250,7 +250,8 @@ class CompactUnprojection(nn.Module):
     precision (exported as Cast -> MatMul(float16) -> Cast); ``"int8"`` rounds them to int8 with per-column block
     scales (:func:`int8_quantize`) - the ONNX file gets onnxruntime's MatMulNBits for them
     (:func:`prt_torch.export.onnx_file.lower_int8_matmuls`); this module then multiplies with the dequantised
-    values (and, with :attr:`emulate_int8` set, rounds its input as onnxruntime does: the parity reference).
+    values (and, with :attr:`emulate_int8` set, rounds its input as onnxruntime does: the parity reference). An int8
+    module also rounds its mean through float16, as the int8 export stores it.
     """
 
     def __init__(self, out: nn.Module, vertex_last: bool = False, cluster_sorted: bool = False,
@@ -280,6 +281,8 @@ class CompactUnprojection(nn.Module):
         self.k_used: list[int] = []
         self.n_used: list[int] = []
         mean = out.mean.detach().float()
+        if precision == "int8":  # stored in float16 by the int8 lowering (prt_torch.export.run.MEAN_PATTERN)
+            mean = mean.half().float()
         if self.cluster_sorted:
             vgrp = grp_vc[:, 0]
             col_vc = col.reshape(v, c)
@@ -346,9 +349,16 @@ class CompactUnprojection(nn.Module):
         self.int8_blocks.append(0)
         return blk
 
-    def _cluster(self, z: torch.Tensor, g: int) -> torch.Tensor:
-        """``z (B, G, K)`` -> cluster ``g``'s output ``(B, L_g)`` at the stored precision."""
-        zg = z[:, g, : self.k_used[g]]
+    def _inputs(self, z: torch.Tensor) -> list[torch.Tensor]:
+        """``z (B, G, K)`` -> each cluster's used inputs ``(B, K_g)``: one Split node when every cluster uses all
+        ``K`` (a Slice + Squeeze pair per cluster otherwise: ~0.3 ms of node overhead at 32 clusters)."""
+        k = int(z.shape[2])
+        if all(k_g == k for k_g in self.k_used):
+            return list(torch.split(z.flatten(1), k, dim=1))
+        return [z[:, g, : self.k_used[g]] for g in range(self.n_groups)]
+
+    def _cluster(self, zg: torch.Tensor, g: int) -> torch.Tensor:
+        """Cluster ``g``'s inputs ``zg (B, K_g)`` -> its output ``(B, L_g)`` at the stored precision."""
         w = getattr(self, f"basis_{g}")
         if self.precision == "fp16":
             return (zg.half() @ w).float()
@@ -359,11 +369,13 @@ class CompactUnprojection(nn.Module):
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         b = z.shape[0]
         if self.cluster_sorted:  # (B, C, n_g) blocks, concatenated along the (cluster-sorted) vertices
-            blocks = [self._cluster(z, g).reshape(b, self.n_coeffs, self.n_used[g])
+            zs = self._inputs(z)
+            blocks = [self._cluster(zs[g], g).reshape(b, self.n_coeffs, self.n_used[g])
                       if getattr(self, f"basis_{g}").numel() else z.new_zeros(b, self.n_coeffs, self.n_used[g])
                       for g in range(self.n_groups) if self.n_used[g]]
             return torch.cat(blocks, dim=2) + self.mean
-        parts = [self._cluster(z, g) for g in range(self.n_groups) if getattr(self, f"basis_{g}").numel()]
+        zs = self._inputs(z)
+        parts = [self._cluster(zs[g], g) for g in range(self.n_groups) if getattr(self, f"basis_{g}").numel()]
         y = torch.cat(parts, dim=1)  # (B, sum L_g)
         if self.row_mode:
             return y.reshape(b, self.n_vertices, self.n_coeffs).index_select(1, self.gather) + self.mean
@@ -371,6 +383,29 @@ class CompactUnprojection(nn.Module):
         if self.vertex_last:
             return out.reshape(b, self.n_coeffs, self.n_vertices)
         return out.reshape(b, self.n_vertices, self.n_coeffs)
+
+
+class QuantizedInputProjection(nn.Module):
+    """An :class:`~prt_torch.models.projection.InputProjection` ``(x - mean) @ proj`` with ``proj (A, d)`` rounded to
+    int8 (:func:`int8_quantize`, blocks along ``A``): the int8 export's input end. Its weight is the buffer
+    ``basis_0`` so that the int8 lowering (``prt_torch.export.run.BASIS_PATTERN``) makes it a MatMulNBits; the
+    module multiplies with the dequantised values (and, with :attr:`emulate_int8`, rounds ``x - mean`` as
+    onnxruntime does). For a deformable run ``A`` is every interior edge of the cloth (~22k at 7.7k vertices): in
+    float32 this projection alone is 4 A d bytes, more than the whole int8 output basis."""
+
+    def __init__(self, inp: nn.Module) -> None:
+        super().__init__()
+        proj = inp.proj.detach().float().numpy()
+        q, scales, self.block = int8_quantize(proj)
+        self.register_buffer("mean", inp.mean.detach().float().clone())
+        self.register_buffer("basis_0", torch.from_numpy(int8_dequantize(q, scales, proj.shape[0])))
+        self.emulate_int8 = False
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        xc = x - self.mean
+        if self.emulate_int8:
+            xc = int8_activations(xc, self.block)
+        return xc @ self.basis_0
 
 
 class VisibilityGraph(nn.Module):
@@ -400,16 +435,22 @@ class VisibilityGraph(nn.Module):
                                            precision=precision)
             self.vertex_last = self.out.vertex_last
             self.vertex_order = self.out.vertex_order
+            from prt_torch.models.projection import InputProjection
+
+            self.inp: nn.Module = QuantizedInputProjection(model.inp) \
+                if precision == "int8" and isinstance(model.inp, InputProjection) else model.inp
 
     def emulate_int8(self, on: bool = True) -> None:
         """Round the int8 GEMMs' inputs as onnxruntime does (the parity reference of an int8 export)."""
         if self.compact:
             self.out.emulate_int8 = on
+            if isinstance(self.inp, QuantizedInputProjection):
+                self.inp.emulate_int8 = on
 
     def forward(self, pose: torch.Tensor) -> torch.Tensor:
         """``(B, A) -> (B, V, C)``, or ``(B, C, V)`` when built with ``vertex_last``."""
         if self.compact:
-            return self.out(self.model.regressor(self.model.inp(pose)))
+            return self.out(self.model.regressor(self.inp(pose)))
         v = self.model(pose)
         return v.transpose(1, 2) if self.vertex_last else v
 

@@ -38,6 +38,7 @@ def export_onnx(
     opset: int = DEFAULT_OPSET,
     exporter: str = "torchscript",
     int8_weights: str | None = None,
+    fp16_weights: str | None = None,
 ) -> Path:
     """Export ``module(*args)`` to ``path`` (atomically) and check the result.
 
@@ -52,6 +53,8 @@ def export_onnx(
         exporter: ``"torchscript"`` (``torch.onnx.export(dynamo=False)``, fast) or ``"dynamo"``.
         int8_weights: a regular expression: MatMuls whose weight initializer's name matches it become int8
             MatMulNBits nodes (:func:`lower_int8_matmuls`); ``None``: none.
+        fp16_weights: a regular expression: float32 initializers whose name matches it are stored in float16 and
+            widened by a Cast (:func:`store_fp16`); ``None``: none.
 
     Returns:
         ``Path(path)``.
@@ -88,6 +91,8 @@ def export_onnx(
         model = onnx.load(str(tmp))
         if int8_weights is not None:
             lower_int8_matmuls(model, int8_weights)
+        if fp16_weights is not None:
+            store_fp16(model, fp16_weights)
         set_metadata(model, metadata or {})
         onnx.checker.check_model(model, full_check=True)
         onnx.save(model, str(tmp))
@@ -144,6 +149,33 @@ def lower_int8_matmuls(model: Any, pattern: str) -> int:
         model.graph.initializer.remove(i)
     if count and not any(o.domain == "com.microsoft" for o in model.opset_import):
         model.opset_import.append(helper.make_opsetid("com.microsoft", 1))
+    return count
+
+
+def store_fp16(model: Any, pattern: str) -> int:
+    """Store the float32 initializers whose name matches ``pattern`` in float16: each becomes ``NAME.fp16`` plus a
+    ``Cast`` to float32 named ``NAME`` at the head of the graph (onnxruntime folds it at load: half the file bytes,
+    the same float32 kernels). The torch side must round those tensors through float16 for parity. Modifies
+    ``model`` in place; returns the number of initializers converted."""
+    import re
+
+    from onnx import TensorProto, helper, numpy_helper
+
+    rx = re.compile(pattern)
+    casts, count = [], 0
+    for init in list(model.graph.initializer):
+        if init.data_type != TensorProto.FLOAT or not rx.search(init.name):
+            continue
+        w = numpy_helper.to_array(init)
+        model.graph.initializer.remove(init)
+        model.graph.initializer.append(numpy_helper.from_array(w.astype(np.float16), f"{init.name}.fp16"))
+        casts.append(helper.make_node("Cast", [f"{init.name}.fp16"], [init.name], name=f"{init.name}_widen",
+                                      to=TensorProto.FLOAT))
+        count += 1
+    if casts:
+        nodes = [*casts, *model.graph.node]
+        del model.graph.node[:]
+        model.graph.node.extend(nodes)
     return count
 
 

@@ -54,6 +54,15 @@ DEFAULT_PRECISION = "int8"
 
 #: the ONNX weight initializers the precision applies to: the per-cluster output bases
 BASIS_PATTERN = r"basis_\d+$"
+#: the ONNX initializers an int8 export stores in float16: the output mean (CompactUnprojection rounds it alike)
+MEAN_PATTERN = r"out\.mean$"
+
+
+def lowering(precision: str) -> dict[str, str | None]:
+    """The :func:`~prt_torch.export.onnx_file.export_onnx` keyword arguments of a weight precision: int8 lowers the
+    bases to MatMulNBits (``int8_weights``) and stores the output mean in float16 (``fp16_weights``)."""
+    int8 = precision == "int8"
+    return {"int8_weights": BASIS_PATTERN if int8 else None, "fp16_weights": MEAN_PATTERN if int8 else None}
 
 #: ONNX vs torch parity tolerance (relative to the output's max) per precision: the int8 reference rounds its
 #: GEMM inputs as onnxruntime does, but a float32 rounding difference upstream can move an activation across a
@@ -274,7 +283,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         if graph_name == "shading":
             g_meta["prt.precision"] = "fp32"
         export_onnx(module, args, path, in_names, out_names, dyn, metadata=g_meta, opset=opset, exporter=exporter,
-                    int8_weights=BASIS_PATTERN if precision == "int8" and graph_name != "shading" else None)
+                    **lowering(precision if graph_name != "shading" else "fp32"))
         _emulate_int8(module, True)
         try:
             p = check_parity(module, path, {k: inputs[k] for k in in_names},
@@ -297,7 +306,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
 
         deformable = ship_deformable(run, deform, vis_graph, held, base_meta, PARITY_RTOL_BY_PRECISION[precision],
                                      opset=opset, exporter=exporter,
-                                     int8_pattern=BASIS_PATTERN if precision == "int8" else None,
+                                     lowered=lowering(precision),
                                      fused_graph=fused_graph, fused_inputs=fused_in)
         if console is not None:
             console.print(f"  {run.positions_graph_path.name}: parity rel. error "

@@ -84,6 +84,7 @@ class TrainConfig(BaseModel):
     kinds: list[str] = Field(default_factory=lambda: list(KINDS), max_length=len(KINDS))
     default_kind: str = "mlp"
     input_variance: float = Field(default=0.90, gt=0, le=1)
+    input_max_components: int | None = Field(default=None, ge=1, le=L.MAX_NEURONS)  # caps the input projection
     output_variance: float = Field(default=0.95, gt=0, le=1)
     output_max_components: int | None = Field(default=None, ge=1, le=L.MAX_NEURONS)  # per cluster: caps model size
     output_pca: Literal["cluster", "global"] = "cluster"  # per-cluster (seed 003) or global (seed 000 sec. 5)

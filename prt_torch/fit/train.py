@@ -100,7 +100,8 @@ def reduce_training(train: SplitData, cluster: np.ndarray, cfg: TrainConfig,
     """Input PCA of the poses, per-cluster output PCA of the visibility, blocked folds; with
     ``skinning = (parents, joints, weights)`` also the per-cluster joint inputs. ``train_only (F,)``: frames
     never validated on in CV (``cv_validate: clips``: the random poses)."""
-    inp = PCA.fit(train.pose, variance=cfg.input_variance, whiten=cfg.whiten_inputs, name="pose features")
+    inp = PCA.fit(train.pose, variance=cfg.input_variance, whiten=cfg.whiten_inputs, name="pose features",
+                  max_components=cfg.input_max_components)
     if cfg.output_pca == "global":
         out: ClusterPCA | GlobalOutputPCA = GlobalOutputPCA.fit(train.visibility, variance=cfg.output_variance)
     else:
@@ -355,8 +356,9 @@ def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
         settings.pop("transfer", None)
     if settings.get("s001") is None:  # likewise train.s001 (seed 001 compressed transfer matrices)
         settings.pop("s001", None)
-    if settings.get("output_max_components") is None:  # likewise the output size cap
-        settings.pop("output_max_components", None)
+    for cap in ("output_max_components", "input_max_components"):  # likewise the size caps
+        if settings.get(cap) is None:
+            settings.pop(cap, None)
     device = resolve_device(cfg.device)
     if device != "cpu":
         settings["device"] = device

@@ -74,8 +74,9 @@ class PCA:
 
     @classmethod
     def fit(cls, data: np.ndarray, variance: float | None = 0.9, n_components: int | None = None,
-            whiten: bool = False, name: str = "pca input") -> PCA:
-        """Fit on ``data (N, D)`` keeping ``n_components`` or enough for ``variance`` of the total."""
+            whiten: bool = False, name: str = "pca input", max_components: int | None = None) -> PCA:
+        """Fit on ``data (N, D)`` keeping ``n_components`` or enough for ``variance`` of the total, at most
+        ``max_components`` (``None``: no cap)."""
         x = _check_data(data, name)
         mean = x.mean(axis=0)
         xc = x - mean
@@ -87,6 +88,9 @@ class PCA:
         else:
             check(1 <= n_components, f"n_components must be >= 1, got {n_components}")
             k = min(int(n_components), len(explained))
+        if max_components is not None:
+            check(1 <= max_components, f"max_components must be >= 1, got {max_components}")
+            k = min(k, int(max_components))
         total = float(explained.sum())
         retained = float(explained[:k].sum() / total) if total > 0 else 1.0
         comps = vt[:k]

@@ -142,3 +142,20 @@ def test_cluster_pca_max_components_caps_each_cluster_like_sklearn() -> None:
         np.testing.assert_allclose(rec[:, m], ref, atol=1e-8)
     with pytest.raises(PrtError, match="max_components"):
         ClusterPCA.fit(y, cluster, variance=0.99, max_components=0)
+
+
+def test_pca_max_components_caps_the_variance_count_like_sklearn() -> None:
+    """``max_components`` keeps min(variance count, cap) components (the input projection's size cap); capped, the
+    reconstruction equals scikit-learn's PCA with that many components; a cap above the count changes nothing."""
+    x = _data(d=12)
+    free = PCA.fit(x, variance=0.999)
+    assert free.n_components > 2  # the cap below binds
+    capped = PCA.fit(x, variance=0.999, max_components=2)
+    assert capped.n_components == 2
+    sk = SkPCA(n_components=2).fit(x)
+    np.testing.assert_allclose(capped.expand(capped.reduce(x)), sk.inverse_transform(sk.transform(x)), atol=1e-9)
+    assert capped.retained == pytest.approx(sk.explained_variance_ratio_.sum(), rel=1e-10)
+    loose = PCA.fit(x, variance=0.999, max_components=free.n_components + 3)
+    np.testing.assert_array_equal(loose.components, free.components)
+    with pytest.raises(PrtError, match="max_components"):
+        PCA.fit(x, variance=0.9, max_components=0)

@@ -69,7 +69,7 @@ class Learned(MethodBase):
 
         from prt_torch.export.graphs import VisibilityGraph
         from prt_torch.export.onnx_file import export_onnx, read_metadata
-        from prt_torch.export.run import BASIS_PATTERN
+        from prt_torch.export.run import lowering
 
         prec = self.precision or "fp32"
         stem = self.kind if not self.precision else f"{self.kind}_{prec}"
@@ -92,12 +92,12 @@ class Learned(MethodBase):
             args = [rest, torch.zeros(1, d.n_body_features)][:len(names)]
             export_onnx(module, args, path, names, ("visibility",), {k: {0: "B"} for k in (*names, "visibility")},
                         metadata={"prt.graph": "positions", "prt.model_kind": self.kind, "prt.precision": prec},
-                        int8_weights=BASIS_PATTERN if prec == "int8" else None)
+                        **lowering(prec))
             return path
         example = torch.zeros(1, model.n_features)
         export_onnx(graph, [example], path, ("pose",), ("visibility",), {"pose": {0: "B"}, "visibility": {0: "B"}},
                     metadata={"prt.graph": "visibility", "prt.model_kind": self.kind, "prt.precision": prec},
-                    int8_weights=BASIS_PATTERN if prec == "int8" else None)
+                    **lowering(prec))
         return path
 
     def visibility(self, batch: FrameBatch) -> np.ndarray:
