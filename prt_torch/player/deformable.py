@@ -13,6 +13,11 @@ numpy + onnxruntime only (never torch). Per frame (:meth:`DeformablePlayer.compu
               features="graph": ORT positions.onnx: dihedral angles -> model --> visibility (B, V, C)
               ORT shading.onnx (the skinned player's Player.shade)--> radiance (B, V, 3)     ("shading")
     [overlap] split, with the features + model on a worker thread while numpy computes the frames
+    [pipeline] playback of a sequence (:meth:`DeformablePlayer.compute_stream`): a worker thread computes frame
+              i + 1's features, visibility and frames while the main thread shades frame i; every onnxruntime
+              session runs on one thread (the two stages fill two cores). Throughput, at one frame of latency: the
+              next frame's positions must be known one frame ahead (a cache, or a simulation running a frame ahead,
+              as engines run the simulation ahead of the renderer). Single frames (:meth:`compute`) run as split.
 
 The numpy features are ~4x faster than the positions graph's (onnxruntime's Gather of the 4 corners of 22k edges
 is ~0.7 ms; numpy's ``take`` of contiguous coordinate rows ~0.15 ms: :mod:`prt_torch.deform.dihedral_soa`), and the
@@ -34,6 +39,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,7 +53,7 @@ from prt_torch.rundir import RunDir
 from prt_torch.runtime.session import OrtGraph
 
 #: graph modes of the deformable player
-DEFORMABLE_MODES = ("fused", "split", "overlap")
+DEFORMABLE_MODES = ("fused", "split", "overlap", "pipeline")
 #: where split / overlap compute the dihedral angles: numpy (DihedralSoA, then the pose graph) or positions.onnx
 FEATURE_MODES = ("numpy", "graph")
 #: playback rate when the vertex cache records none
@@ -78,8 +84,10 @@ class DeformablePlayer(Player):
     """Plays cached sequences of an exported deformable run (see the module docstring).
 
     Args: those of :class:`Player` except ``graph``: ``"split"`` (default: positions graph, then the shading graph;
-    the fastest measured on the 7.7k flag), ``"fused"`` (one positions -> radiance call) or ``"overlap"`` (split,
-    the features + model on a worker thread while numpy computes the frames); ``crowd_chunk`` is not used;
+    the fastest measured per single frame on the 7.7k flag), ``"fused"`` (one positions -> radiance call),
+    ``"overlap"`` (split, the features + model on a worker thread while numpy computes the frames) or
+    ``"pipeline"`` (sequence playback two frames in flight: :meth:`compute_stream`; every session on one thread,
+    ``threads`` is ignored); ``crowd_chunk`` is not used;
     ``features``: ``"numpy"`` (default, fastest measured: :class:`DihedralSoA` + the pose graph) or ``"graph"``
     (``positions.onnx``) for split / overlap.
     """
@@ -95,6 +103,8 @@ class DeformablePlayer(Player):
         check(graph in DEFORMABLE_MODES, f"unknown graph mode {graph!r} for a deformable run: expected one of "
                                          f"{list(DEFORMABLE_MODES)}")
         check(features in FEATURE_MODES, f"unknown features mode {features!r}: expected one of {list(FEATURE_MODES)}")
+        if graph == "pipeline":  # two stages on two threads: one onnxruntime thread each (no oversubscription)
+            threads = 1
         super().__init__(run_dir, env=env, brdf=brdf, graph="split", threads=threads, window_size=window_size,
                          exposure=exposure, n_lobes=n_lobes, blas_threads=blas_threads, spinning=spinning,
                          device=device)
@@ -243,14 +253,7 @@ class DeformablePlayer(Player):
                 timer.add("fused", time.perf_counter() - t1)
             return state, out
         if self.mode == "overlap":
-            if self._pool is None:
-                from concurrent.futures import ThreadPoolExecutor
-
-                self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prt-visibility")
-                path = self.positions_graph.path if self.features == "graph" else \
-                    self.bundle.graphs["visibility"].path
-                self._vis_overlap = OrtGraph(path, threads=1, spinning=self._spinning, device=self.device)
-            fut = self._pool.submit(self._visibility, positions, positions_soa, body, self._vis_overlap)
+            fut = self._worker().submit(self._visibility, positions, positions_soa, body, self._vis_overlap)
             state = self.frames(positions_soa)
             t1 = time.perf_counter()
             vis = fut.result()
@@ -265,6 +268,46 @@ class DeformablePlayer(Player):
             timer.add("visibility", t2 - t1)  # overlap: the part of the model call not hidden behind the frames
             timer.add("shading", time.perf_counter() - t2)
         return state, out
+
+    def _stage(self, frame: Any) -> tuple[PoseBatch, np.ndarray]:
+        """The pipeline's worker stage for ``frame = (positions, positions_soa, body)``: (posed batch, visibility)."""
+        positions, positions_soa, body = frame
+        vis = self._visibility(positions, positions_soa, body, self._vis_overlap)
+        return self.frames(positions_soa), vis
+
+    def compute_stream(self, frames: Any, n: int, timer: FrameTimer | None = None) -> Iterator[tuple[PoseBatch,
+                                                                                                    np.ndarray]]:
+        """``(state, radiance)`` of frames ``0 .. n-1`` of ``frames`` (a :class:`Sequence`), in order. Mode
+        ``"pipeline"``: frame ``i + 1``'s stage (:meth:`_stage`: features, visibility, frames) runs on the worker
+        thread while this thread shades frame ``i`` (timer steps ``"visibility"``: the part of the stage not hidden
+        behind the shading and rendering, as in overlap; ``"shading"``); other modes: :meth:`compute` per frame."""
+        if self.mode != "pipeline":
+            yield from super().compute_stream(frames, n, timer)
+            return
+        pool = self._worker()
+        fut = pool.submit(self._stage, frames[0:1]) if n > 0 else None
+        for i in range(n):
+            t0 = time.perf_counter()
+            state, vis = fut.result()  # type: ignore[union-attr]
+            if i + 1 < n:
+                fut = pool.submit(self._stage, frames[i + 1:i + 2])
+            t1 = time.perf_counter()
+            out = self.shade(state, visibility=vis, checked=False)
+            if timer is not None:
+                timer.add("visibility", t1 - t0)
+                timer.add("shading", time.perf_counter() - t1)
+            yield state, out
+
+    def _worker(self) -> Any:
+        """The worker thread of the overlap and pipeline modes and its one-thread session of the visibility graph
+        (``positions.onnx`` or ``visibility.onnx`` by ``features``), created on first use."""
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prt-visibility")
+            path = self.positions_graph.path if self.features == "graph" else self.bundle.graphs["visibility"].path
+            self._vis_overlap = OrtGraph(path, threads=1, spinning=self._spinning, device=self.device)
+        return self._pool
 
     def frame_sequence(self, seq: Sequence) -> None:
         """Aim the camera at the whole sequence (:func:`~prt_torch.player.player.sequence_view`: the box of every

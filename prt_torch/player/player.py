@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -440,8 +441,7 @@ class Player:
             renderer.plotter.show(interactive_update=True, auto_close=False)
         prog = _progress(progress, n, f"playing {clip}")
         try:
-            for i in range(n):
-                state, radiance = self.compute(locals_[i:i + 1], timer)
+            for i, (state, radiance) in enumerate(self.compute_stream(locals_, n, timer)):
                 with timer.step("colors"):
                     col = self.colors(radiance[0])
                 if renderer is not None:
@@ -479,6 +479,13 @@ class Player:
                                              "white": self.exposure.white})
             outputs.append(Path(timings))
         return PlayResult(n, summary, outputs)
+
+    def compute_stream(self, locals_: Any, n: int, timer: FrameTimer | None = None) -> Iterator[tuple[PoseBatch,
+                                                                                                     np.ndarray]]:
+        """``(state, radiance)`` of frames ``0 .. n-1`` of ``locals_`` in order (what :meth:`play` renders): one
+        :meth:`compute` per frame here; a subclass may keep several frames in flight."""
+        for i in range(n):
+            yield self.compute(locals_[i:i + 1], timer)
 
     def _bind_keys(self, renderer: Any) -> None:  # pragma: no cover - needs a display
         pl = renderer.plotter

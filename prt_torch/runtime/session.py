@@ -86,6 +86,7 @@ class OrtGraph:
         import onnxruntime as ort
 
         self.path = Path(path)
+        self.threads = max(1, int(threads))  # onnxruntime intra-op threads of this session
         if not self.path.is_file():
             raise PrtError(f"ONNX file not found: {self.path}")
         providers = providers_for(device)

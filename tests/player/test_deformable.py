@@ -78,6 +78,33 @@ def test_graph_modes_agree(player, deformable_run, mode: str, features: str) -> 
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
 
 
+def test_pipeline_stream_equals_split_frame_by_frame(player, deformable_run, tmp_path: Path) -> None:
+    """The pipelined playback (frame i + 1's stage on the worker while frame i is shaded) gives every frame's state
+    and radiance of the split path, in order, for every prefix length (0, 1 and the whole sequence); a single frame
+    through compute() is the split path too; play() in pipeline mode writes a full timings file."""
+    from prt_torch.player.deformable import DeformablePlayer
+
+    seq = player.make_sequence(heldout_positions()[:9], name="held")
+    ref = [(s.frames.copy(), r) for s, r in player.compute_stream(seq, len(seq))]
+    p2 = DeformablePlayer(deformable_run[0], brdf="phong", graph="pipeline")
+    try:
+        assert p2.bundle.graphs["shading"].threads == 1  # two stages, one onnxruntime thread each
+        for n in (0, 1, len(seq)):
+            got = [(s.frames.copy(), r) for s, r in p2.compute_stream(seq, n)]
+            assert len(got) == n
+            for (fa, ra), (fb, rb) in zip(ref[:n], got, strict=True):
+                np.testing.assert_allclose(fb, fa, rtol=0, atol=1e-6)
+                np.testing.assert_allclose(rb, ra, rtol=1e-5, atol=1e-6)
+        _, one = p2.compute(seq[4:5])
+        np.testing.assert_allclose(one, ref[4][1], rtol=1e-5, atol=1e-6)
+        res = p2.play(seq, max_frames=6, timings=tmp_path / "pipe.json", progress=False)
+    finally:
+        p2.close()
+    t = json.loads((tmp_path / "pipe.json").read_text())
+    assert res.frames == 6 and all(len(v) == 6 for v in t["frames_ms"].values())
+    assert set(t["frames_ms"]) >= {"visibility", "shading"} and res.summary["compute_fps"] > 0
+
+
 def test_numpy_features_equal_the_positions_graph(player, deformable_run) -> None:
     """The default visibility step (numpy dihedral angles + the pose graph) == the shipped positions graph (ORT,
     features in the graph) and the features == the numpy rule cloth_features; whole frames agree across the two
@@ -114,7 +141,10 @@ def test_bench_play_deformable_ratios(deformable_run, capsys: pytest.CaptureFixt
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     ms, r = out["steps_ms"], out["ratios"]
-    assert set(out["fps_variants"]) >= {"frame_split", "frame_split_graphfeat", "frame_overlap", "frame_fused"}
+    assert set(out["fps_variants"]) >= {"frame_split", "frame_split_graphfeat", "frame_overlap", "frame_fused",
+                                        "stream_pipeline"}
+    assert r["sequence playback: pipeline / split"] == pytest.approx(ms["stream_pipeline"] / ms["stream_split"])
+    assert out["fps_pipeline"] == pytest.approx(1e3 / ms["stream_pipeline"])
     assert r["frame split: numpy features / graph features"] == pytest.approx(
         ms["frame_split"] / ms["frame_split_graphfeat"])
     assert out["fps"] == pytest.approx(1e3 / min(ms[k] for k in ("frame_split", "frame_overlap", "frame_fused")))
