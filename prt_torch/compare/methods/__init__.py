@@ -10,6 +10,8 @@ path, :mod:`prt_torch.eval.shipping`) or radiance directly. Built in:
 ``learned_linear``,    the run's trained models through onnxruntime (:class:`prt_torch.runtime.session.OrtGraph`):
 ``learned_quadratic``, the shipped ``visibility.onnx`` for the exported kind, the others' ``VisibilityGraph``
 ``learned_mlp``        exported into the run's compare directory
+``pca_floor``          (opt-in) an oracle: the baked visibility through the model's output PCA - the error every
+                       regressor with that basis has at least
 =====================  ===========================================================================
 
 Adding a method (one small module)::
@@ -220,3 +222,4 @@ from prt_torch.compare.methods import sg_vct as _sg_vct  # noqa: E402,F401
 from prt_torch.compare.methods import shexp as _shexp  # noqa: E402,F401
 from prt_torch.compare.methods import learned_transfer as _learned_transfer  # noqa: E402,F401
 from prt_torch.compare.methods import s001 as _s001  # noqa: E402,F401
+from prt_torch.compare.methods import pca_floor as _pca_floor  # noqa: E402,F401
