@@ -37,3 +37,28 @@ def test_cluster_reduce_then_expand_is_cluster_pca_projection() -> None:
         np.testing.assert_allclose(out(torch.from_numpy(z_in.astype(np.float32))).numpy(), inside,
                                    atol=1e-4 * np.abs(inside).max())
     assert METHODS["pca_floor"].default is False  # an oracle: opt-in, never a run-time row by default
+
+
+def test_pca_floor_on_a_run_bounds_every_learned_model(small_run) -> None:  # noqa: ANN001
+    """On a trained run's held-out frames: the oracle is the orthogonal projection onto the affine span every model
+    of the run outputs in (same output basis and mean), so its error is at most each model's, frame by frame."""
+    from prt_torch.compare.run import heldout_frames, load_compare_run
+    from prt_torch.metrics import vis_rel_err
+    from prt_torch.models.visibility import load_model
+
+    ctx = load_compare_run(small_run)
+    fs = heldout_frames(ctx, max_frames=4)
+    assert METHODS["pca_floor"].available(ctx) and fs.baked_visibility is not None
+    floor = METHODS["pca_floor"]()
+    floor.prepare(ctx, fs)
+    got = floor.visibility(fs.batch(np.arange(fs.n_frames)))
+    truth = fs.baked_visibility
+    assert got.shape == truth.shape
+    kinds = [k for k in ("linear", "quadratic", "mlp") if ctx.run.model_path(k).is_file()]
+    assert kinds
+    for kind in kinds:
+        with torch.no_grad():
+            pred = load_model(small_run, kind).predict(fs.features).numpy()
+        for f in range(fs.n_frames):
+            assert vis_rel_err(got[f:f + 1], truth[f:f + 1]) <= vis_rel_err(pred[f:f + 1], truth[f:f + 1]) + 1e-6
+    assert 0 < vis_rel_err(got, truth) < 1
