@@ -53,9 +53,11 @@ def flag_character(rest: np.ndarray, faces: np.ndarray) -> object:
 
 
 def build_deformable_run(base: Path, nx: int = NX, nz: int = NZ, order: int = ORDER, name: str = "deformable_run",
-                         neurons: int = 8) -> tuple[Path, object]:
+                         neurons: int = 8, n_body: int = 0) -> tuple[Path, object]:
     """Write, train and export the run into ``base/<name>`` (once); returns ``(run_dir, DeformSpec)``.
-    ``nx * nz`` vertices (the default 192; 110 x 70 = 7.7k is the issue's flag size, for benchmarks)."""
+    ``nx * nz`` vertices (the default 192; 110 x 70 = 7.7k is the issue's flag size, for benchmarks). ``n_body``:
+    that many body features appended to the dihedral angles (the cape's ``append_pose``: :func:`body_features`), and
+    the visibility depends on them too."""
     import zarr
 
     from prt_torch.bake.deformable import frame_operator
@@ -74,7 +76,7 @@ def build_deformable_run(base: Path, nx: int = NX, nz: int = NZ, order: int = OR
     labels = np.asarray(spatial_clusters(rest, 6, 0), np.int32)
     op = frame_operator(ch, labels)
     edges = np.asarray(interior_edges(faces), np.int64)
-    spec = DeformSpec(edges=edges, cloth_slice=slice(0, rest.shape[0]), n_body_features=0, operator=op)
+    spec = DeformSpec(edges=edges, cloth_slice=slice(0, rest.shape[0]), n_body_features=n_body, operator=op)
     marker = base / f"{name}.done"
     if marker.is_file():
         return run_dir, spec
@@ -82,7 +84,8 @@ def build_deformable_run(base: Path, nx: int = NX, nz: int = NZ, order: int = OR
     ch.save(run_dir / "character.npz")
     clips = [f"wind{k}" for k in range(N_CLIPS - 1)] + ["wind_heldout"]
     pos = np.concatenate([flag_positions(rest, FRAMES, seed=k) for k in range(N_CLIPS)])
-    pose = np.asarray(cloth_features(pos, edges, None), np.float32)
+    body = np.concatenate([body_features(FRAMES, n_body, seed=k) for k in range(N_CLIPS)]) if n_body else None
+    pose = np.asarray(cloth_features(pos, edges, body), np.float32)
     frames = np.asarray(op.frames(pos), np.float32)
     # visibility: hemisphere SH + occluders whose strength is a smooth step of the local fold (dihedral angles)
     rng = np.random.default_rng(1)
@@ -96,7 +99,10 @@ def build_deformable_run(base: Path, nx: int = NX, nz: int = NZ, order: int = OR
     occ[:, 2] = np.abs(occ[:, 2]) + 0.5
     occ /= np.linalg.norm(occ, axis=1, keepdims=True)
     o = -0.6 * sh_basis(occ, order)
-    s = 1.0 / (1.0 + np.exp(-4.0 * np.tanh(pose.astype(np.float64) @ u) @ w))
+    logit = np.tanh(pose[:, :edges.shape[0]].astype(np.float64) @ u) @ w
+    if n_body:  # the body's pose shadows the cloth too
+        logit = logit + np.sin(body.astype(np.float64) @ rng.normal(size=(n_body, v)))
+    s = 1.0 / (1.0 + np.exp(-4.0 * logit))
     vis = (h[None, None] + s[..., None] * o[None]).astype(np.float32)
     n = pos.shape[0]
     g = zarr.open_group(str(run_dir / "dataset.zarr"), mode="w")
@@ -121,6 +127,13 @@ def build_deformable_run(base: Path, nx: int = NX, nz: int = NZ, order: int = OR
     export_run(run_dir, brdfs=("lambert", "phong"), deform=spec)
     marker.write_text("ok\n")
     return run_dir, spec
+
+
+def body_features(n_frames: int, n_body: int, seed: int) -> np.ndarray:
+    """``(n_frames, n_body)`` smooth per-clip body features (sines of time with seeded rates and phases)."""
+    rng = np.random.default_rng(100 + seed)
+    t = np.arange(n_frames)[:, None] / FRAMES
+    return np.sin(2 * np.pi * rng.uniform(0.3, 1.5, n_body) * t + rng.uniform(0, 2 * np.pi, n_body)).astype(np.float32)
 
 
 def heldout_positions(n_frames: int = FRAMES) -> np.ndarray:

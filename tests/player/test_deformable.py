@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 
 from prt_torch.errors import PrtError
-from tests.player.deformable_run import build_deformable_run, flag_mesh, heldout_positions
+from tests.player.deformable_run import (
+    FRAMES,
+    N_CLIPS,
+    body_features,
+    build_deformable_run,
+    flag_mesh,
+    heldout_positions,
+)
 
 
 @pytest.fixture(scope="session")
@@ -103,6 +110,41 @@ def test_pipeline_stream_equals_split_frame_by_frame(player, deformable_run, tmp
     t = json.loads((tmp_path / "pipe.json").read_text())
     assert res.frames == 6 and all(len(v) == 6 for v in t["frames_ms"].values())
     assert set(t["frames_ms"]) >= {"visibility", "shading"} and res.summary["compute_fps"] > 0
+
+
+@pytest.fixture(scope="session")
+def body_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
+    return build_deformable_run(tmp_path_factory.getbasetemp(), name="deformable_body_run", n_body=5)
+
+
+def test_body_features_play_alike_in_every_mode(body_run) -> None:
+    """A run with body features after the dihedral angles (the cape's append_pose): split, pipeline, overlap and both
+    fused graphs give the same radiance for the same positions and body features; other body features give other
+    radiance (they reach the model); a sequence without them is a one-line error."""
+    from prt_torch.player.deformable import DeformablePlayer
+
+    n_body = 5
+    pos = heldout_positions()[:6]
+    body = body_features(FRAMES, n_body, seed=N_CLIPS - 1)[:6]
+    split = DeformablePlayer(body_run[0], brdf="phong")
+    try:
+        assert split.n_body == n_body
+        ref = [r for _, r in split.compute_stream(split.make_sequence(pos, body), len(pos))]
+        for mode, features in (("pipeline", "numpy"), ("pipeline", "graph"), ("overlap", "graph"), ("fused", "numpy"),
+                               ("fused", "graph")):
+            q = DeformablePlayer(body_run[0], brdf="phong", graph=mode, features=features)
+            try:
+                got = [r for _, r in q.compute_stream(q.make_sequence(pos, body), len(pos))]
+            finally:
+                q.close()
+            for a, b in zip(ref, got, strict=True):
+                np.testing.assert_allclose(b, a, rtol=1e-4, atol=1e-5, err_msg=f"{mode}/{features}")
+        other = [r for _, r in split.compute_stream(split.make_sequence(pos, body[::-1].copy()), len(pos))]
+        assert max(float(np.abs(a - b).max()) for a, b in zip(ref, other, strict=True)) > 1e-3
+        with pytest.raises(PrtError, match="body features"):
+            split.make_sequence(pos, None)
+    finally:
+        split.close()
 
 
 def test_numpy_features_equal_the_positions_graph(player, deformable_run) -> None:
