@@ -49,18 +49,7 @@ class DihedralSoA:
             a = [gc[2] - gc[0] for gc in g]
             b = [gc[3] - gc[1] for gc in g]
             del g
-            ee = e[0] * e[0]
-            ee += e[1] * e[1]
-            ee += e[2] * e[2]
-            eb = e[0] * b[0]
-            eb += e[1] * b[1]
-            eb += e[2] * b[2]
-            ae = a[0] * e[0]
-            ae += a[1] * e[1]
-            ae += a[2] * e[2]
-            ab = a[0] * b[0]
-            ab += a[1] * b[1]
-            ab += a[2] * b[2]
+            ee, eb, ae, ab = _dot3(e, e), _dot3(e, b), _dot3(a, e), _dot3(a, b)
             c = eb * ae
             ab *= ee
             c -= ab
@@ -81,3 +70,11 @@ class DihedralSoA:
             r = np.arctan2(y, c, out=out[bi])
             r[r <= -np.pi] = p.dtype.type(np.pi)  # (-pi, pi]: -pi (rounded) -> +pi
         return out
+
+
+def _dot3(u: list[np.ndarray], w: list[np.ndarray]) -> np.ndarray:
+    """``u . w`` of two coordinate triples of ``(E,)`` rows: one new row, the other two products added in place."""
+    d = u[0] * w[0]
+    d += u[1] * w[1]
+    d += u[2] * w[2]
+    return d
