@@ -16,6 +16,8 @@ frame by frame in ``--repeats`` blocks, medians reported (:class:`prt_torch.play
   previous path), ``*_1thread`` with one onnxruntime thread (the better setting on a loaded 2-core machine) -
   ``fps``. Spinning threads are not compared here: a spinning pool keeps its cores busy after its call and slows
   whatever is timed next (measure them in separate processes: the player's ``spinning=``);
+* ``stream_<mode>``: sequence playback (``compute_stream`` over the held-out frames, wall time / frames): split and
+  overlap one frame at a time, pipeline with the next frame's stage in flight (one frame of latency);
 * ``ratios``: new / old of each compared pair, side by side (``< 1``: the new variant is faster);
 * the roofline of :mod:`prt_torch.commands.bench_play` (copy bandwidth, GEMM rate, bytes and FLOPs per step) for the
   frame's lower bound and ``roofline_fraction``.
@@ -195,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
             "fps_overlap": 1e3 / ms["frame_overlap"], "fps_old": 1e3 / old_best,
             "fps_pipeline": 1e3 / ms["stream_pipeline"], "fps_stream_split": 1e3 / ms["stream_split"],
             "fps_variants": {k: 1e3 / ms[k] for k in variants if k in ms}, "ratios": ratios,
-            "steps_ms": ms, "features_ms": ms[f"positions_{prec} (shipped)"] - ms["visibility_pose"],
+            "steps_ms": ms, "features_ms": feat_graph,
             "bytes_model": mbytes, "roofline": {"frame_bound_ms": frame_bound, "roofline_fraction": frame_bound / best,
                                                 "steps": bounds},
             "machine": {"copy_bandwidth_gb_s": bw / 1e9, "gemm_gflop_s": gemm / 1e9},

@@ -83,7 +83,7 @@ class Sequence:
 class DeformablePlayer(Player):
     """Plays cached sequences of an exported deformable run (see the module docstring).
 
-    Args: those of :class:`Player` except ``graph``: ``"split"`` (default: positions graph, then the shading graph;
+    Args: those of :class:`Player` except ``graph``: ``"split"`` (default: the visibility, then the shading graph;
     the fastest measured per single frame on the 7.7k flag), ``"fused"`` (one positions -> radiance call),
     ``"overlap"`` (split, the features + model on a worker thread while numpy computes the frames) or
     ``"pipeline"`` (sequence playback two frames in flight: :meth:`compute_stream`; every session on one thread,

@@ -34,6 +34,11 @@ def cluster_reduce(basis: np.ndarray, gather: np.ndarray, mean: np.ndarray, y: n
     return np.einsum("bgl,glk->bgk", r.reshape(-1, g, l_max), pinv)
 
 
+def _kind(run: CompareRun) -> str | None:
+    """The model kind whose basis the oracle uses: the exported kind, else the run's default."""
+    return (run.export_meta or {}).get("model_kind") or run.model_meta.get("default_kind")
+
+
 @register
 class PCAFloor(MethodBase):
     """The truth through the trained model's output PCA (module docstring). Opt-in: ``--methods pca_floor``."""
@@ -45,13 +50,9 @@ class PCAFloor(MethodBase):
 
     @classmethod
     def available(cls, run: CompareRun) -> bool:
-        from prt_torch.models.projection import OutputUnprojection
-        from prt_torch.models.visibility import load_model
-
-        kind = (run.export_meta or {}).get("model_kind") or run.model_meta.get("default_kind")
-        if not kind or not run.run.model_path(kind).is_file():
-            return False
-        return isinstance(getattr(load_model(run.run, kind), "out", None), OutputUnprojection)
+        kind = _kind(run)  # per-cluster output bases (OutputUnprojection), read from the metadata: no model load
+        return bool(kind) and run.run.model_path(kind).is_file() \
+            and run.model_meta.get("output_pca", "cluster") == "cluster"
 
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
         from prt_torch.models.visibility import load_model
@@ -59,21 +60,21 @@ class PCAFloor(MethodBase):
         if frames.baked_visibility is None:
             raise PrtError("pca_floor needs the frames' baked visibility: compare the dataset's held-out frames "
                            "(no --clip)")
-        self.kind = (run.export_meta or {}).get("model_kind") or run.model_meta.get("default_kind")
-        out = load_model(run.run, self.kind).out
-        self.basis = out.basis.detach().numpy().astype(np.float32)
-        self.gather = out.gather.detach().numpy().astype(np.int64)
-        self.mean = out.mean.detach().numpy().astype(np.float32)
-        self.shape = (int(out.n_vertices), int(out.n_coeffs))
+        self.kind = _kind(run)
+        self.out = load_model(run.run, self.kind).out  # OutputUnprojection: its forward is the expand
+        self.basis = self.out.basis.detach().numpy()
+        self.gather = self.out.gather.detach().numpy().astype(np.int64)
+        self.mean = self.out.mean.detach().numpy()
         self.pinv = np.linalg.pinv(self.basis.astype(np.float64))  # (G, L, K), once
         self.truth = frames.baked_visibility
 
     def visibility(self, batch: FrameBatch) -> np.ndarray:
+        import torch
+
         y = np.asarray(self.truth[batch.index], np.float64).reshape(len(batch.index), -1)
         z = cluster_reduce(self.basis, self.gather, self.mean, y, self.pinv)
-        g, _, l_max = self.basis.shape
-        rec = np.einsum("bgk,gkl->bgl", z, self.basis).reshape(len(batch.index), g * l_max)[:, self.gather]
-        return (rec + self.mean).reshape(len(batch.index), *self.shape).astype(np.float32)
+        with torch.no_grad():
+            return self.out(torch.from_numpy(z.astype(np.float32))).numpy()
 
     def info(self) -> dict[str, Any]:
         return {"oracle": True, "model_kind": self.kind}
