@@ -56,6 +56,9 @@ DEFAULT_PRECISION = "int8"
 BASIS_PATTERN = r"basis_\d+$"
 #: the ONNX initializers an int8 export stores in float16: the output mean (CompactUnprojection rounds it alike)
 MEAN_PATTERN = r"out\.mean$"
+#: what an int8 export's graphs hold (part of the export key of int8 exports only): 2 = the input projection int8
+#: too and the output mean in float16 (1: the output bases alone), so an older int8 export is re-exported
+INT8_LAYOUT = 2
 
 
 def lowering(precision: str) -> dict[str, str | None]:
@@ -205,6 +208,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     key = stage_key({"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
                      "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT, "blockers": n_spheres,
                      "shexp_graph": SHEXP_GRAPH_VERSION, **_transfer_key(run),
+                     **({"int8_layout": INT8_LAYOUT} if precision == "int8" else {}),
                      **({"deformable": [DEFORMABLE_VERSION, deform.n_body_features]} if deform is not None else {})})
     outputs = (run.export_json, run.frames_path, *(run.graph_path(g) for g in GRAPHS),
                *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path, *deform_files,
