@@ -161,10 +161,9 @@ def positions_fused_module(fused_graph: Any, edges: np.ndarray, n_body_features:
             super().__init__()
             self.features = position_features_module(edges, n_body_features)
             self.fused = fused_graph
-            self.n_body = int(n_body_features)
 
         def forward(self, positions: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
-            if self.n_body:
+            if self.features.n_body:
                 return self.fused(self.features(positions, rest[0]), *rest[1:])
             return self.fused(self.features(positions), *rest)
 
