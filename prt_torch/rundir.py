@@ -77,6 +77,8 @@ _S001 = "s001.npz"
 _DEFORM = "deform.npz"  # a deformable run's frame operator + cloth edges (prt_torch.export.deformable)
 _POSITIONS_ONNX = "positions.onnx"  # a deformable run's positions-in visibility graph
 _POSITIONS_FUSED_ONNX = "positions_fused.onnx"  # a deformable run's positions-in radiance graph (cluster order)
+_LOCAL_ONNX = "local.onnx"  # a deformable run's shipped local visibility network (prt_torch.export.local_graph)
+_LOCAL_DATA = "local.npz"  # its neighbour indices
 _RPO = "rpo"
 _MATERIAL_RPO = "material"  # rpo/material-<key>.npz: the character material's RPO (player cache)
 _COMPARE = "compare"
@@ -241,6 +243,12 @@ class RunDir:
         check(array.isidentifier() and kind.isidentifier(), f"bad transfer model {array!r} / {kind!r}")
         return self.models_dir / f"{array}_{kind}.pt"
 
+    def local_model_path(self, kind: str) -> Path:
+        """``models/local_<kind>.pt``: a local visibility model (``prt train`` with ``train.local``,
+        :mod:`prt_torch.fit.local`)."""
+        check(kind.isidentifier(), f"bad local model kind {kind!r}")
+        return self.models_dir / f"local_{kind}.pt"
+
     @property
     def transfer_json(self) -> Path:
         return self.path / _TRANSFER_JSON
@@ -353,6 +361,17 @@ class RunDir:
     def deform_path(self) -> Path:
         """``deform.npz``: a deformable run's frame operator, cloth edges and layout (``prt export``)."""
         return self.path / _DEFORM
+
+    @property
+    def local_graph_path(self) -> Path:
+        """``local.onnx``: the shipped local visibility network (``train.local.default``,
+        :mod:`prt_torch.export.local_graph`)."""
+        return self.path / _LOCAL_ONNX
+
+    @property
+    def local_data_path(self) -> Path:
+        """``local.npz``: the shipped local model's neighbour indices (:mod:`prt_torch.export.local_graph`)."""
+        return self.path / _LOCAL_DATA
 
     @property
     def positions_graph_path(self) -> Path:

@@ -205,13 +205,19 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     if deform is None and is_deformable(run):
         deform = deform_spec(run)
     deform_files = (run.deform_path, run.positions_graph_path, run.positions_fused_path) if deform is not None else ()
+    from prt_torch.export.local_graph import LOCAL_GRAPH_VERSION, shipped_local_kind
+
+    local_kind = shipped_local_kind(run) if deform is not None else None
+    local_files = (run.local_graph_path, run.local_data_path) if local_kind is not None else ()
     key = stage_key({"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
                      "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT, "blockers": n_spheres,
                      "shexp_graph": SHEXP_GRAPH_VERSION, **_transfer_key(run),
                      **({"int8_layout": INT8_LAYOUT} if precision == "int8" else {}),
-                     **({"deformable": [DEFORMABLE_VERSION, deform.n_body_features]} if deform is not None else {})})
+                     **({"deformable": [DEFORMABLE_VERSION, deform.n_body_features]} if deform is not None else {}),
+                     **({"local": [LOCAL_GRAPH_VERSION, local_kind, file_sha256(run.local_model_path(local_kind))]}
+                        if local_kind is not None else {})})
     outputs = (run.export_json, run.frames_path, *(run.graph_path(g) for g in GRAPHS),
-               *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path, *deform_files,
+               *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path, *deform_files, *local_files,
                *([run.transfer_graph_path] if run.transfer_json.is_file() else []))
     if not force and run.is_current("export", key, outputs):
         try:
@@ -315,6 +321,18 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         if console is not None:
             console.print(f"  {run.positions_graph_path.name}: parity rel. error "
                           f"{deformable['parity']['rel_error']:.2e} (positions -> dihedral angles -> visibility)")
+    local = None
+    if local_kind is not None:  # the local visibility network the player runs instead of the per-cluster model
+        from prt_torch.export.local_graph import ship_local
+
+        local = ship_local(run, local_kind, held, base_meta, PARITY_RTOL_BY_PRECISION["fp32"], opset=opset,
+                           exporter=exporter)
+        if console is not None:
+            console.print(f"  {run.local_graph_path.name}: parity rel. error {local['parity']['rel_error']:.2e} "
+                          f"(local {local_kind}: neighbour offsets -> visibility)")
+    else:
+        run.local_graph_path.unlink(missing_ok=True)
+        run.local_data_path.unlink(missing_ok=True)
     meta = {
         "format": FORMAT, "conventions": conventions, "below_horizon": below_horizon, "sh_order": order,
         "n_coeffs": C, "n_vertices": V, "n_features": A, "n_terms": n_terms, "model_kind": model.kind,
@@ -328,10 +346,12 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         "parity_rows": held["rows"].tolist(), "export_seconds": time.perf_counter() - t0,
         "model_file": run.relative(mpath), "shexp": shexp,
         **({"deformable": deformable} if deformable is not None else {}),
+        **({"local": local} if local is not None else {}),
         **({"transfer": transfer} if transfer is not None else {}),
         "file_sha256": run.unit_hashes([run.frames_path, *(run.rpo_path(b) for b in rpo_files),
                                         *(run.graph_path(g) for g in GRAPHS), run.blockers_path, run.shexp_path,
-                                        *deform_files, *([run.transfer_graph_path] if transfer else [])]),
+                                        *deform_files, *local_files,
+                                        *([run.transfer_graph_path] if transfer else [])]),
     }
     atomic_write_json(run.export_json, meta)  # the commit record: written last
     run.mark_done("export", key)

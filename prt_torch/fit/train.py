@@ -356,6 +356,8 @@ def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
         settings.pop("transfer", None)
     if settings.get("s001") is None:  # likewise train.s001 (seed 001 compressed transfer matrices)
         settings.pop("s001", None)
+    if settings.get("local") is None:  # likewise train.local (local visibility models)
+        settings.pop("local", None)
     for cap in ("output_max_components", "input_max_components"):  # likewise the size caps
         if settings.get(cap) is None:
             settings.pop(cap, None)
@@ -434,6 +436,11 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     transfer = train_transfer(ds, run, cfg, progress)
     if transfer is not None:
         metrics["transfer"] = transfer
+    from prt_torch.fit.local import train_local  # local visibility models (train.local; else removed)
+
+    local = train_local(ds, run, cfg, progress)
+    if local is not None:
+        metrics["local"] = local
     from prt_torch.fit.s001 import train_s001  # seed 001 compressed transfer matrices (train.s001; else removed)
 
     s001 = train_s001(ds, run, cfg, progress)

@@ -11,6 +11,8 @@ numpy + onnxruntime only (never torch). Per frame (:meth:`DeformablePlayer.compu
     [split]   features="numpy" (default): numpy dihedral angles (DihedralSoA, vertex-last) [+ body] -> ORT
               visibility.onnx (the pose graph: the same model) --> visibility (B, V, C)    ("visibility")
               features="graph": ORT positions.onnx: dihedral angles -> model --> visibility (B, V, C)
+              a run shipping a LOCAL network (export.json ``local``): frames first, then numpy neighbour offsets
+              (LocalOffsetsSoA) -> ORT local.onnx --> visibility (B, V, C); split and pipeline only
               ORT shading.onnx (the skinned player's Player.shade)--> radiance (B, V, 3)     ("shading")
     [overlap] split, with the features + model on a worker thread while numpy computes the frames
     [pipeline] playback of a sequence (:meth:`DeformablePlayer.compute_stream`): a worker thread computes frame
@@ -129,6 +131,21 @@ class DeformablePlayer(Player):
                                             device=device)
         self._vis_overlap: OrtGraph | None = None
         self._threads, self._spinning = threads, spinning
+        #: the shipped local visibility network (export.json ``local``; None: the per-cluster model plays)
+        self.local_graph: OrtGraph | None = None
+        local = self.bundle.meta.get("local")
+        if isinstance(local, dict):
+            from prt_torch.deform.local_soa import LocalOffsetsSoA
+            from prt_torch.export.local_graph import load_neighbours
+
+            check(graph in ("split", "pipeline"),
+                  f"{run.path} ships a local visibility model (local_{local.get('kind')}), which needs the frames "
+                  f"first: play it with --graph split or pipeline, not {graph}")
+            self.local_offsets = LocalOffsetsSoA(load_neighbours(run))
+            check(self.local_offsets.n_vertices == self.bundle.n_vertices,
+                  f"{run.local_data_path.name}: {self.local_offsets.n_vertices} vertices, the run's subject "
+                  f"{self.bundle.n_vertices}: run `prt export {run.path} --force`")
+            self.local_graph = OrtGraph(run.local_graph_path, threads=threads, spinning=spinning, device=device)
 
     # -- inputs ---------------------------------------------------------------------------------
     def sequences(self) -> list[str]:
@@ -210,6 +227,13 @@ class DeformablePlayer(Player):
             return (graph or self.positions_graph).run_unchecked(self._vis_feeds(positions, body))[0]
         return self._visibility_numpy(positions_soa, body, graph)
 
+    def _local_visibility(self, positions_soa: np.ndarray, state: PoseBatch,
+                          graph: OrtGraph | None = None) -> np.ndarray:
+        """``(B, V, C)`` visibility of the shipped local network: the numpy neighbour offsets of the positions in
+        ``state``'s frames, then ``local.onnx`` (``graph``: another session of it, the pipeline worker's)."""
+        x = self.local_offsets(positions_soa, state.frames)
+        return (graph or self.local_graph).run_unchecked({"offsets": x})[0]  # type: ignore[union-attr]
+
     def _vis_feeds(self, positions: np.ndarray, body: np.ndarray | None) -> dict[str, np.ndarray]:
         feeds = {"positions": np.ascontiguousarray(positions, dtype=np.float32)}
         if self.n_body:
@@ -218,7 +242,14 @@ class DeformablePlayer(Player):
 
     def visibility_from_positions(self, positions: np.ndarray, body: np.ndarray | None = None,
                                   checked: bool = True) -> np.ndarray:
-        """``positions (B, V, 3)`` [+ ``body (B, Ab)``] -> ``(B, V, C)`` local visibility (ORT positions graph)."""
+        """``positions (B, V, 3)`` [+ ``body (B, Ab)``] -> ``(B, V, C)`` local visibility (ORT positions graph;
+        a run shipping a local network: its frames, offsets and ``local.onnx``)."""
+        if self.local_graph is not None:
+            p = np.ascontiguousarray(np.asarray(positions, np.float32).transpose(0, 2, 1))
+            if checked:
+                check(p.ndim == 3 and p.shape[1:] == (3, self.bundle.n_vertices) and np.isfinite(p).all(),
+                      f"positions must be finite (B, {self.bundle.n_vertices}, 3), got {np.shape(positions)}")
+            return self._local_visibility(p, self.frames(p))
         feeds = self._vis_feeds(positions, body)
         g = self.positions_graph
         return g.run(feeds)["visibility"] if checked else g.run_unchecked(feeds)[0]
@@ -260,7 +291,8 @@ class DeformablePlayer(Player):
         else:
             state = self.frames(positions_soa)
             t1 = time.perf_counter()
-            vis = self._visibility(positions, positions_soa, body)
+            vis = self._local_visibility(positions_soa, state) if self.local_graph is not None else \
+                self._visibility(positions, positions_soa, body)
         t2 = time.perf_counter()
         out = self.shade(state, visibility=vis, checked=False)
         if timer is not None:
@@ -272,6 +304,9 @@ class DeformablePlayer(Player):
     def _stage(self, frame: Any) -> tuple[PoseBatch, np.ndarray]:
         """The pipeline's worker stage for ``frame = (positions, positions_soa, body)``: (posed batch, visibility)."""
         positions, positions_soa, body = frame
+        if self.local_graph is not None:  # the local network needs the frames first
+            state = self.frames(positions_soa)
+            return state, self._local_visibility(positions_soa, state, self._vis_overlap)
         vis = self._visibility(positions, positions_soa, body, self._vis_overlap)
         return self.frames(positions_soa), vis
 
@@ -306,6 +341,8 @@ class DeformablePlayer(Player):
 
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prt-visibility")
             path = self.positions_graph.path if self.features == "graph" else self.bundle.graphs["visibility"].path
+            if self.local_graph is not None:
+                path = self.local_graph.path
             self._vis_overlap = OrtGraph(path, threads=1, spinning=self._spinning, device=self.device)
         return self._pool
 

@@ -232,7 +232,9 @@ TINY_CAPE = {
     "bake": {"order": 3, "n_rays": 64, "frames_per_task": 4, "max_clusters": 8, "workers": 1},
     "train": {"kinds": ["linear", "mlp"], "input_selection": "pca", "input_variance": 0.9, "folds": 2,
               "alphas": [0.01, 1.0], "mlp_alphas": [1.0], "neurons": [4], "cv_iter": 20, "max_iter": 40,
-              "device": "cpu"},
+              "device": "cpu",
+              "local": {"radii": [0.05, 0.15], "angles": 4, "hidden": [8], "steps": 300, "batch": 512, "lr": 3e-3,
+                        "default": "mlp"}},
 }
 
 
@@ -281,15 +283,19 @@ def test_cape_simulate_bake_train_compare(cape_run: Path) -> None:
         np.testing.assert_allclose(ds.pose[rows], cloth_features(cache.positions(name), subject.cloth_edges, None),
                                    atol=1e-6)
     assert ds.n_vertices == subject.character.num_vertices == run.character().num_vertices
-    code, err = prt("compare", str(cape_run), "--methods", "learned_linear,learned_mlp", "--image-frames", "2",
+    learned = ("learned_linear", "learned_mlp", "learned_local_linear", "learned_local_mlp")
+    code, err = prt("compare", str(cape_run), "--methods", ",".join(learned), "--image-frames", "2",
                     "--reference-frames", "0", "--frames", "3")
     assert code == 0, err
     res = json.loads(run.compare_json.read_text())
-    assert set(res["methods"]) == {"sh_truth", "learned_linear", "learned_mlp"}
+    assert set(res["methods"]) == {"sh_truth", *learned}
     assert res["clips"] == subject.sequences("heldout") and res["frames"] == 3
     truth_err = res["methods"]["sh_truth"]["vis_rel_err"]
     assert truth_err == 0.0
-    for m in ("learned_linear", "learned_mlp"):  # real predictions: better than nothing, not the truth itself
+    # the local models (train.local): onnxruntime on the numpy offsets gives the torch model's visibility
+    metrics = json.loads(run.metrics_json.read_text())
+    assert set(metrics["local"]) == {"linear", "mlp"}
+    for m in learned:  # real predictions: better than nothing, not the truth itself
         assert 0.0 < res["methods"][m]["vis_rel_err"] < 0.5
         assert res["methods"][m]["psnr_image_diffuse"] > 20.0
     # --clip NAME of a deformable run: the cached sequence, frames by the bake's rule, equal to the dataset's rows
@@ -359,3 +365,33 @@ def test_missing_cache_and_no_simulator_is_one_line(tmp_path: Path, monkeypatch:
     assert "\n" not in str(e.value) and not (tmp_path / "nocache" / "dataset.zarr").exists()
     done = run_bake(config_from_dict({**TINY_CAPE, "run_dir": str(cape_run)}), workers=1, progress=False)
     assert done.frames == 0 and done.skipped == RunDir(cape_run).dataset().n_frames
+
+
+def test_cape_ships_the_local_network(cape_run: Path) -> None:
+    """``train.local.default: mlp``: prt export ships local.onnx + local.npz; the player's visibility (numpy
+    offsets in its own frames, then onnxruntime) is the torch model's on the baked frames, split and pipeline play
+    the same radiance, and the fused graph mode is a one-line error."""
+    from prt_torch.models.local import load_local
+    from prt_torch.player.deformable import DeformablePlayer
+
+    code, err = prt("export", str(cape_run))
+    assert code == 0, err
+    run = RunDir(cape_run)
+    meta = run.export_meta()
+    assert meta["local"]["kind"] == "mlp" and meta["local"]["parity"]["rel_error"] < 1e-5
+    assert run.local_graph_path.is_file() and run.local_data_path.is_file()
+    ds = run.dataset()
+    held = ds.split("heldout", extra=("positions", "frames"))
+    pos = held.extra["positions"]
+    model = load_local(run.local_model_path("mlp"))
+    split = DeformablePlayer(cape_run, graph="split")
+    vis = split.visibility_from_positions(pos)
+    np.testing.assert_allclose(vis, model.predict(pos, held.extra["frames"]), atol=2e-4)
+    pipe = DeformablePlayer(cape_run, graph="pipeline")
+    seq = split.make_sequence(pos, held.pose[:, -split.n_body:] if split.n_body else None)
+    a = [r for _, r in split.compute_stream(seq, len(pos))]
+    b = [r for _, r in pipe.compute_stream(seq, len(pos))]
+    np.testing.assert_array_equal(np.concatenate(a), np.concatenate(b))
+    with pytest.raises(PrtError, match="ships a local visibility model") as e:
+        DeformablePlayer(cape_run, graph="fused")
+    assert "\n" not in str(e.value)

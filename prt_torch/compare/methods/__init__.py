@@ -10,6 +10,8 @@ path, :mod:`prt_torch.eval.shipping`) or radiance directly. Built in:
 ``learned_linear``,    the run's trained models through onnxruntime (:class:`prt_torch.runtime.session.OrtGraph`):
 ``learned_quadratic``, the shipped ``visibility.onnx`` for the exported kind, the others' ``VisibilityGraph``
 ``learned_mlp``        exported into the run's compare directory
+``learned_local_*``    the run's local models (``train.local``): numpy neighbour offsets + the network in
+                       onnxruntime (:mod:`prt_torch.compare.methods.local`)
 ``pca_floor``          (opt-in) an oracle: the baked visibility through the model's output PCA - the error every
                        regressor with that basis has at least
 =====================  ===========================================================================
@@ -218,6 +220,7 @@ def graph_dir(run: CompareRun) -> Path:
 from prt_torch.compare.methods import sh_truth as _sh_truth  # noqa: E402,F401,I001
 from prt_torch.compare.methods import unshadowed as _unshadowed  # noqa: E402,F401
 from prt_torch.compare.methods import learned as _learned  # noqa: E402,F401
+from prt_torch.compare.methods import local as _local  # noqa: E402,F401
 from prt_torch.compare.methods import sg_vct as _sg_vct  # noqa: E402,F401
 from prt_torch.compare.methods import shexp as _shexp  # noqa: E402,F401
 from prt_torch.compare.methods import learned_transfer as _learned_transfer  # noqa: E402,F401

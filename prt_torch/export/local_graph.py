@@ -1,0 +1,106 @@
+"""The shipped local visibility network of a deformable run (``train.local.default``; :mod:`prt_torch.models.local`).
+
+``prt export`` writes, when the run's training config names a local kind to ship:
+
+* ``local.npz`` (:attr:`RunDir.local_data_path`): ``neighbours (V, S)`` int32, the model's neighbour indices;
+* ``local.onnx`` (:attr:`RunDir.local_graph_path`): the network only, ``offsets (B, 3 S, V) -> visibility
+  (B, V, C)`` (:class:`prt_torch.models.local.LocalHead`). The player computes ``offsets`` with the numpy twin
+  :class:`prt_torch.deform.local_soa.LocalOffsetsSoA` from the positions and the frames it computes anyway
+  (onnxruntime's Gather of the neighbour coordinates is ~10x slower than numpy's ``take``).
+
+Checked at export: the numpy twin against the torch rule :func:`prt_torch.models.local.local_offsets` on held-out
+frames, and onnxruntime against torch (parity).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from prt_torch.errors import PrtError, check
+from prt_torch.rundir import RunDir
+
+#: version of the shipped local graph (part of the export key when one ships)
+LOCAL_GRAPH_VERSION = 1
+#: worst |numpy twin - torch rule| accepted, relative to the largest offset
+TWIN_RTOL = 1e-5
+
+
+def shipped_local_kind(run: RunDir) -> str | None:
+    """The local kind the run ships (``train.local.default`` of its model metadata), or ``None``."""
+    cfg = run.model_meta().get("train_config", {}).get("local")
+    kind = cfg.get("default") if isinstance(cfg, dict) else None
+    if kind is not None:
+        check(run.local_model_path(kind).is_file(), f"{run.path}: train.local.default is {kind!r} but "
+                                                    f"{run.relative(run.local_model_path(kind))} is missing: "
+                                                    f"run `prt train` again")
+    return kind
+
+
+def load_neighbours(run: RunDir) -> np.ndarray:
+    """``(V, S)`` int32 neighbour indices of the shipped local model (one-line error when missing or damaged)."""
+    path = run.local_data_path
+    if not path.is_file():
+        raise PrtError(f"{path} not found: run `prt export {run.path}`")
+    try:
+        with np.load(path) as d:
+            nb = np.asarray(d["neighbours"], dtype=np.int32)
+    except Exception as exc:  # noqa: BLE001 - any read problem is a damaged file
+        raise PrtError(f"{path}: not a local model data file ({type(exc).__name__})") from None
+    check(nb.ndim == 2 and nb.size > 0, f"{path}: neighbours must be (V, S), got {nb.shape}")
+    return nb
+
+
+def offsets_inputs(positions: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``positions (F, V, 3)``, ``frames (F, V, 3, 3)`` -> the player's vertex-last ``(F, 3, V)``, ``(F, 9, V)``."""
+    p = np.ascontiguousarray(np.asarray(positions, np.float32).transpose(0, 2, 1))
+    f = np.asarray(frames, np.float32)
+    return p, np.ascontiguousarray(f.reshape(f.shape[0], f.shape[1], 9).transpose(0, 2, 1))
+
+
+def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: dict[str, Any], rtol: float,
+               opset: int = 17, exporter: str = "torchscript") -> dict[str, Any]:
+    """Write ``local.npz`` and ``local.onnx`` for the run's local ``kind``; check the numpy twin and the parity on
+    ``held`` (``positions (F, V, 3)``, ``frames (F, V, 3, 3)``). Returns the ``export.json`` ``local`` entry."""
+    import torch
+
+    from prt_torch.deform.local_soa import LocalOffsetsSoA
+    from prt_torch.export.onnx_file import export_onnx, initializer_bytes
+    from prt_torch.export.parity import check_parity
+    from prt_torch.io import atomic_path
+    from prt_torch.models.local import load_local, local_offsets
+    from prt_torch.rundir import file_sha256
+
+    mpath = run.local_model_path(kind)
+    model = load_local(mpath)
+    nb = model.neighbours.numpy().astype(np.int32)
+    pos, frames = held["positions"], held["frames"]
+    check(pos.shape[1] == model.n_vertices, f"{mpath}: {model.n_vertices} vertices, the run's frames {pos.shape[1]}")
+    p_soa, f_soa = offsets_inputs(pos, frames)
+    x = LocalOffsetsSoA(nb)(p_soa, f_soa)
+    with torch.no_grad():
+        ref = local_offsets(torch.from_numpy(np.asarray(pos, np.float32)), torch.from_numpy(np.asarray(frames,
+                                                                                                      np.float32)),
+                            model.neighbours).transpose(1, 2).numpy()
+    twin_err = float(np.abs(x - ref).max() / max(float(np.abs(ref).max()), 1e-30))
+    check(twin_err <= TWIN_RTOL, f"{run.path}: the numpy local offsets differ from the torch rule by {twin_err:.3g} "
+                                 f"(> {TWIN_RTOL})")
+    with atomic_path(run.local_data_path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, neighbours=nb)
+    path = run.local_graph_path
+    batch = {0: "B"}
+    meta = {**base_meta, "prt.graph": "local", "prt.model_kind": f"local_{kind}", "prt.vertex_order": "original",
+            "prt.precision": "fp32", "prt.model_sha256": file_sha256(mpath),
+            "prt.offsets": "offsets input (B, 3 S, V): row k S + s = frame row k (t, b, n) . (p_neighbour_s - p), "
+                           "neighbours in local.npz"}
+    export_onnx(model.head, [torch.from_numpy(x)], path, ("offsets",), ("visibility",),
+                {"offsets": batch, "visibility": batch}, metadata=meta, opset=opset, exporter=exporter)
+    p = check_parity(model.head, path, {"offsets": x}, rtol=rtol)
+    return {"version": LOCAL_GRAPH_VERSION, "kind": kind, "file": run.relative(path),
+            "data_file": run.relative(run.local_data_path), "model_file": run.relative(mpath),
+            "model_sha256": file_sha256(mpath), "n_samples": int(nb.shape[1]), "inputs": ["offsets"],
+            "twin_max_rel_error": twin_err,
+            "bytes": int(initializer_bytes(path) + nb.nbytes),
+            "parity": {**p.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes": path.stat().st_size}}
