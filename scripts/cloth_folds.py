@@ -44,10 +44,13 @@ def main() -> None:
         img_l = p.render_frame(state, rad_l)
         img_u = p.render_frame(state, unsh)
         err = float(np.abs(rad_l - rad_t).mean() / np.abs(rad_t).mean())
+        local = p.bundle.meta.get("local")  # the shipped local network plays when there is one
+        kind = f"local_{local['kind']}" if p.local_graph is not None and isinstance(local, dict) else \
+            f"{p.bundle.meta['model_kind']}, {p.bundle.precision}"
         strip = image_strip(
             [img_u, img_t, img_l],
             ["unshadowed (no visibility)", f"ray-traced truth (Embree, {ds.attrs['bake']['n_rays']} rays)",
-             f"learned ({p.bundle.meta['model_kind']}, {p.bundle.precision}), held out"],
+             f"learned ({kind}), held out"],
             diffs=[None, abs_diff_image(img_u, img_t), abs_diff_image(img_l, img_t)],
             diff_labels=["", "4x |unshadowed - truth|", "4x |learned - truth|"])
         write_png(a.out, strip)

@@ -18,6 +18,9 @@ frame by frame in ``--repeats`` blocks, medians reported (:class:`prt_torch.play
   whatever is timed next (measure them in separate processes: the player's ``spinning=``);
 * ``stream_<mode>``: sequence playback (``compute_stream`` over the held-out frames, wall time / frames): split and
   overlap one frame at a time, pipeline with the next frame's stage in flight (one frame of latency);
+* a run shipping a LOCAL network (``export.json`` ``local``): every row above plays the per-cluster model
+  (``local=False``), and ``local_offsets`` (numpy), ``local_visibility`` (offsets + ``local.onnx``),
+  ``frame_split_local``, ``stream_split_local`` and ``stream_pipeline_local`` play the local one;
 * ``ratios``: new / old of each compared pair, side by side (``< 1``: the new variant is faster);
 * the roofline of :mod:`prt_torch.commands.bench_play` (copy bandwidth, GEMM rate, bytes and FLOPs per step) for the
   frame's lower bound and ``roofline_fraction``.
@@ -91,7 +94,10 @@ def run(args: argparse.Namespace) -> int:
         check(p in PRECISIONS, f"--precisions: unknown precision {p!r} (expected {list(PRECISIONS)})")
     console = Console(stderr=True)
     run_dir = RunDir(args.run)
+    has_local = isinstance(run_dir.export_meta().get("local"), dict)
+
     def make(graph: str, threads: int = args.threads, **kw: Any) -> DeformablePlayer:
+        kw.setdefault("local", False if has_local else None)  # the per-cluster rows play the per-cluster model
         return DeformablePlayer(run_dir, brdf=args.brdf, threads=threads, device=args.device, graph=graph, **kw)
 
     player = make("split")
@@ -99,6 +105,9 @@ def run(args: argparse.Namespace) -> int:
                 "frame_split_1thread": make("split", threads=1), "frame_overlap": make("overlap"),
                 "frame_overlap_graphfeat": make("overlap", features="graph"), "frame_fused": make("fused"),
                 "frame_fused_graphfeat": make("fused", features="graph")}
+    local_player = make("split", local=True) if has_local else None
+    if local_player is not None:  # the shipped local network: frames, numpy offsets, local.onnx
+        variants["frame_split_local"] = local_player
     try:
         ds = run_dir.dataset()
         rows = ds.split_rows("heldout") if "heldout" in ds.splits else np.flatnonzero(ds.done)
@@ -118,7 +127,9 @@ def run(args: argparse.Namespace) -> int:
             graphs[f"{player.bundle.precision} (shipped)"] = player.positions_graph
             times: dict[str, list[float]] = {k: [] for k in ("frames", "features_numpy", "visibility_numpy",
                                                              "visibility_pose", "shading", *variants,
-                                                             *(f"positions_{p}" for p in graphs))}
+                                                             *(f"positions_{p}" for p in graphs),
+                                                             *(("local_offsets", "local_visibility")
+                                                               if local_player is not None else ()))}
             vis_pose = player.bundle.graphs["visibility"]
             shade_vis = player.visibility_from_positions(pos[:1], None if body is None else body[:1])
 
@@ -133,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
                          ("shading", lambda: player.shade(state, visibility=shade_vis, checked=False)),
                          *((k, (lambda q=q: q.compute((p_i, s_i, b_i)))) for k, q in variants.items()),
                          *((f"positions_{p}", (lambda g=g: g.run_unchecked(feeds))) for p, g in graphs.items())]
+                if local_player is not None:
+                    steps += [("local_offsets", lambda: local_player.local_offsets(s_i, state.frames)),
+                              ("local_visibility", lambda: local_player._local_visibility(s_i, state))]
                 state = player.frames(s_i)
                 k = i % len(steps)  # rotate the order each frame
                 for name, fn in steps[k:] + steps[:k]:
@@ -152,6 +166,10 @@ def run(args: argparse.Namespace) -> int:
                        "stream_pipeline": make("pipeline")}
             variants["stream_pipeline"] = streams["stream_pipeline"]
             streams["stream_pipeline"].exposure = player.exposure
+            if local_player is not None:
+                streams["stream_split_local"] = local_player
+                streams["stream_pipeline_local"] = variants["stream_pipeline_local"] = make("pipeline", local=True)
+                streams["stream_pipeline_local"].exposure = player.exposure
             for q in streams.values():
                 for _ in q.compute_stream(seq, min(n, args.warmup)):
                     pass
@@ -186,6 +204,14 @@ def run(args: argparse.Namespace) -> int:
                  "frame fused / split": ("frame_fused", "frame_split"),
                  "sequence playback: pipeline / split": ("stream_pipeline", "stream_split"),
                  "sequence playback: pipeline / overlap": ("stream_pipeline", "stream_overlap")}
+        if local_player is not None:
+            pairs.update({"visibility: local (offsets + local.onnx) / per-cluster (numpy features + pose graph)":
+                          ("local_visibility", "visibility_numpy"),
+                          "frame split: local / per-cluster": ("frame_split_local", "frame_split"),
+                          "sequence playback: local pipeline / per-cluster pipeline":
+                          ("stream_pipeline_local", "stream_pipeline"),
+                          "sequence playback: local pipeline / local split": ("stream_pipeline_local",
+                                                                             "stream_split_local")})
         feat_graph = ms[f"positions_{prec} (shipped)"] - ms["visibility_pose"]
         ratios = {k: ms[a] / (ms[b] if b else feat_graph) for k, (a, b) in pairs.items()}
         ratios["best frame: new / old (graph features)"] = best / old_best
@@ -196,6 +222,9 @@ def run(args: argparse.Namespace) -> int:
             "fps": 1e3 / best, "fps_fused": 1e3 / ms["frame_fused"], "fps_split": 1e3 / ms["frame_split"],
             "fps_overlap": 1e3 / ms["frame_overlap"], "fps_old": 1e3 / old_best,
             "fps_pipeline": 1e3 / ms["stream_pipeline"], "fps_stream_split": 1e3 / ms["stream_split"],
+            **({"fps_pipeline_local": 1e3 / ms["stream_pipeline_local"],
+                "fps_stream_split_local": 1e3 / ms["stream_split_local"],
+                "local": run_dir.export_meta()["local"]["kind"]} if local_player is not None else {}),
             "fps_variants": {k: 1e3 / ms[k] for k in variants if k in ms}, "ratios": ratios,
             "steps_ms": ms, "features_ms": feat_graph,
             "bytes_model": mbytes, "roofline": {"frame_bound_ms": frame_bound, "roofline_fraction": frame_bound / best,
@@ -223,4 +252,7 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"frame: {out['fps']:.0f} frames/s now, {out['fps_old']:.0f} frames/s with the graph features")
     console.print(f"sequence playback: {out['fps_pipeline']:.0f} frames/s pipelined (one frame of latency), "
                   f"{out['fps_stream_split']:.0f} frames/s split")
+    if "fps_pipeline_local" in out:
+        console.print(f"local {out['local']} (shipped): {out['fps_pipeline_local']:.0f} frames/s pipelined, "
+                      f"{out['fps_stream_split_local']:.0f} frames/s split")
     return 0

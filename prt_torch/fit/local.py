@@ -145,8 +145,15 @@ def fit_local(kind: str, positions: np.ndarray, frames: np.ndarray, visibility: 
     vis = np.ascontiguousarray(visibility, np.float32)
     if kind == "linear":
         model = fit_local_linear(pos, fr, vis, nb, cfg)
-    else:
-        model = fit_local_mlp(pos, fr, vis, nb, rest, rest_frames, cfg, seed, progress)
+    else:  # big batches of one small network: every core helps (prt train pins torch to train.threads for L-BFGS)
+        import os
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(max(threads, min(os.cpu_count() or 1, 8)))
+        try:
+            model = fit_local_mlp(pos, fr, vis, nb, rest, rest_frames, cfg, seed, progress)
+        finally:
+            torch.set_num_threads(threads)
     return model, time.perf_counter() - t0
 
 

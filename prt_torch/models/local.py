@@ -214,17 +214,9 @@ def save_local(model: LocalVisibility, path: Any) -> None:
 
 def load_local(path: Any) -> LocalVisibility:
     """Read a local model file (one-line :class:`PrtError` for a missing or foreign file)."""
-    from pathlib import Path
+    from prt_torch.models.visibility import read_payload
 
-    path = Path(path)
-    if not path.is_file():
-        raise PrtError(f"local model file not found: {path}")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unpickling problem is a bad file
-        raise PrtError(f"{path}: not a prt_torch local model file ({type(exc).__name__})") from None
-    if not isinstance(payload, dict) or payload.get("format") != LOCAL_FORMAT:
-        raise PrtError(f"{path}: not a prt_torch local model file")
+    payload = read_payload(path, (LOCAL_FORMAT,), "local model file")
     cfg, st = payload["config"], payload["state_dict"]
     n = int(cfg["n_layers"])
     try:

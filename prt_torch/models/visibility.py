@@ -163,18 +163,26 @@ def save_model(model: VisibilityModel, path: str | Path) -> None:
         torch.save(payload, tmp)
 
 
-def load_model_file(path: str | Path) -> VisibilityModel:
-    """Read one ``.pt`` model file (float32, eval mode)."""
+def read_payload(path: str | Path, formats: tuple[str, ...], what: str = "model file") -> dict[str, Any]:
+    """The dict a ``.pt`` model file holds (tensors only: ``weights_only``), its ``format`` one of ``formats``;
+    one-line :class:`PrtError` naming ``what`` for a missing, unreadable or foreign file."""
     path = Path(path)
     if not path.is_file():
-        raise PrtError(f"model file not found: {path}")
+        raise PrtError(f"{what} not found: {path}")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling problem is a bad file
-        raise PrtError(f"{path}: not a prt_torch model file ({type(exc).__name__})") from None
-    if not isinstance(payload, dict) or payload.get("format") not in READABLE_FORMATS:
-        raise PrtError(f"{path}: not a prt_torch model file (format {payload.get('format')!r})"
-                       if isinstance(payload, dict) else f"{path}: not a prt_torch model file")
+        raise PrtError(f"{path}: not a prt_torch {what} ({type(exc).__name__})") from None
+    if not isinstance(payload, dict) or payload.get("format") not in formats:
+        raise PrtError(f"{path}: not a prt_torch {what} (format {payload.get('format')!r})"
+                       if isinstance(payload, dict) else f"{path}: not a prt_torch {what}")
+    return payload
+
+
+def load_model_file(path: str | Path) -> VisibilityModel:
+    """Read one ``.pt`` model file (float32, eval mode)."""
+    path = Path(path)
+    payload = read_payload(path, READABLE_FORMATS)
     model = VisibilityModel.from_config(payload["config"])
     state = payload["state_dict"]
     if payload["config"].get("output", "cluster") == "cluster":

@@ -91,14 +91,16 @@ class DeformablePlayer(Player):
     ``"pipeline"`` (sequence playback two frames in flight: :meth:`compute_stream`; every session on one thread,
     ``threads`` is ignored); ``crowd_chunk`` is not used;
     ``features``: ``"numpy"`` (default, fastest measured: :class:`DihedralSoA` + the pose graph) or ``"graph"``
-    (``positions.onnx``) for split / overlap.
+    (``positions.onnx``) for split / overlap; ``local``: ``None`` (default) plays the shipped local network when
+    the export has one (``export.json`` ``local``: split and pipeline only), ``False`` the per-cluster model
+    anyway (benchmarks), ``True`` insists on the local network.
     """
 
     def __init__(self, run_dir: str | os.PathLike[str] | RunDir, env: str | os.PathLike[str] | None = None,
                  brdf: str | None = None, graph: str = "split", threads: int = 2,
                  window_size: tuple[int, int] = (480, 640), exposure: Any = None, n_lobes: int = 3,
                  blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu",
-                 features: str = "numpy") -> None:
+                 features: str = "numpy", local: bool | None = None) -> None:
         from prt_torch.deform.dihedral_soa import DihedralSoA
         from prt_torch.export.deform_data import DeformData
 
@@ -133,13 +135,15 @@ class DeformablePlayer(Player):
         self._threads, self._spinning = threads, spinning
         #: the shipped local visibility network (export.json ``local``; None: the per-cluster model plays)
         self.local_graph: OrtGraph | None = None
-        local = self.bundle.meta.get("local")
-        if isinstance(local, dict):
+        shipped = self.bundle.meta.get("local")
+        check(local is not True or isinstance(shipped, dict),
+              f"{run.path} ships no local visibility model (train.local.default): play it without local=True")
+        if isinstance(shipped, dict) and local is not False:
             from prt_torch.deform.local_soa import LocalOffsetsSoA
             from prt_torch.export.local_graph import load_neighbours
 
             check(graph in ("split", "pipeline"),
-                  f"{run.path} ships a local visibility model (local_{local.get('kind')}), which needs the frames "
+                  f"{run.path} ships a local visibility model (local_{shipped.get('kind')}), which needs the frames "
                   f"first: play it with --graph split or pipeline, not {graph}")
             self.local_offsets = LocalOffsetsSoA(load_neighbours(run))
             check(self.local_offsets.n_vertices == self.bundle.n_vertices,

@@ -395,3 +395,29 @@ def test_cape_ships_the_local_network(cape_run: Path) -> None:
     with pytest.raises(PrtError, match="ships a local visibility model") as e:
         DeformablePlayer(cape_run, graph="fused")
     assert "\n" not in str(e.value)
+
+
+def test_cape_local_bench_and_torch_free_player(cape_run: Path, tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """`prt bench play` on a run shipping a local network: the per-cluster rows and the local rows side by side,
+    each ratio the quotient of the medians it names; `prt play --sequence` of it never imports torch."""
+    from prt_torch.cli import main
+
+    if not RunDir(cape_run).local_graph_path.is_file():
+        assert prt("export", str(cape_run))[0] == 0
+    capsys.readouterr()
+    assert main(["bench", "play", str(cape_run), "--frames", "5", "--repeats", "1", "--warmup", "1", "--precisions",
+                 "fp32", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    ms, r = out["steps_ms"], out["ratios"]
+    assert out["local"] == "mlp" and {"local_offsets", "local_visibility", "frame_split_local",
+                                      "stream_pipeline_local"} <= set(ms)
+    assert r["sequence playback: local pipeline / per-cluster pipeline"] == pytest.approx(
+        ms["stream_pipeline_local"] / ms["stream_pipeline"])
+    assert out["fps_pipeline_local"] == pytest.approx(1e3 / ms["stream_pipeline_local"])
+    from tests.torchfree import run_cli_without_torch
+
+    name = RunDir(cape_run).dataset().splits["heldout"][0]
+    run_cli_without_torch(["play", str(cape_run), "--sequence", name, "--max-frames", "2", "--out",
+                           str(tmp_path / "cape.mp4")])  # pipelined, the local network
+    assert (tmp_path / "cape.mp4").stat().st_size > 0
