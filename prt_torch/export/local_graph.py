@@ -2,11 +2,14 @@
 
 ``prt export`` writes, when the run's training config names a local kind to ship:
 
-* ``local.npz`` (:attr:`RunDir.local_data_path`): ``neighbours (V, S)`` int32, the model's neighbour indices;
+* ``local.npz`` (:attr:`RunDir.local_data_path`): ``neighbours (V, S)``, the model's neighbour indices (int16 up to
+  32,767 vertices, else int32);
 * ``local.onnx`` (:attr:`RunDir.local_graph_path`): the network only, ``offsets (B, 3 S, V) -> visibility
   (B, V, C)`` (:class:`prt_torch.models.local.LocalHead`). The player computes ``offsets`` with the numpy twin
   :class:`prt_torch.deform.local_soa.LocalOffsetsSoA` from the positions and the frames it computes anyway
-  (onnxruntime's Gather of the neighbour coordinates is ~10x slower than numpy's ``take``).
+  (onnxruntime's Gather of the neighbour coordinates is ~10x slower than numpy's ``take``); its per-vertex tables
+  (the first-layer term and the intercepts, most of its bytes) are stored in float16 when the fit put them on the
+  float16 grid (:func:`table_lowering`), exactly.
 
 Checked at export: the numpy twin against the torch rule :func:`prt_torch.models.local.local_offsets` on held-out
 frames, and onnxruntime against torch (parity).
@@ -52,6 +55,26 @@ def load_neighbours(run: RunDir) -> np.ndarray:
     return nb
 
 
+#: the per-vertex tables of a LocalHead (ONNX initializer names), stored in float16 when they are on its grid
+FP16_TABLES = r"(^|\.)(b0|mean)$"
+
+
+def table_lowering(head: Any) -> dict[str, str | None]:
+    """``export_onnx`` keywords of a :class:`~prt_torch.models.local.LocalHead`: its per-vertex tables in float16
+    when every value is a float16 value (fits round them: :func:`prt_torch.fit.local.to_fp16_grid`), else none
+    (parity would break)."""
+    import torch
+
+    tables = [t for t in (getattr(head, "b0", None), head.mean) if t is not None]
+    exact = all(torch.equal(t, t.to(torch.float16).to(torch.float32)) for t in tables)
+    return {"fp16_weights": FP16_TABLES if exact else None}
+
+
+def neighbour_dtype(n_vertices: int) -> Any:
+    """int16 indices up to 32,767 vertices, else int32 (``local.npz``)."""
+    return np.int16 if n_vertices <= np.iinfo(np.int16).max + 1 else np.int32
+
+
 def offsets_inputs(positions: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``positions (F, V, 3)``, ``frames (F, V, 3, 3)`` -> the player's vertex-last ``(F, 3, V)``, ``(F, 9, V)``."""
     p = np.ascontiguousarray(np.asarray(positions, np.float32).transpose(0, 2, 1))
@@ -88,19 +111,22 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
                                  f"(> {TWIN_RTOL})")
     with atomic_path(run.local_data_path) as tmp:
         with open(tmp, "wb") as fh:
-            np.savez(fh, neighbours=nb)
+            np.savez(fh, neighbours=nb.astype(neighbour_dtype(nb.shape[0])))
     path = run.local_graph_path
     batch = {0: "B"}
     meta = {**base_meta, "prt.graph": "local", "prt.model_kind": f"local_{kind}", "prt.vertex_order": "original",
-            "prt.precision": "fp32", "prt.model_sha256": file_sha256(mpath),
+            "prt.model_sha256": file_sha256(mpath),
             "prt.offsets": "offsets input (B, 3 S, V): row k S + s = frame row k (t, b, n) . (p_neighbour_s - p), "
                            "neighbours in local.npz"}
+    low = table_lowering(model.head)
+    meta["prt.precision"] = "fp32 (per-vertex tables fp16)" if low["fp16_weights"] else "fp32"
     export_onnx(model.head, [torch.from_numpy(x)], path, ("offsets",), ("visibility",),
-                {"offsets": batch, "visibility": batch}, metadata=meta, opset=opset, exporter=exporter)
+                {"offsets": batch, "visibility": batch}, metadata=meta, opset=opset, exporter=exporter, **low)
     p = check_parity(model.head, path, {"offsets": x}, rtol=rtol)
     return {"version": LOCAL_GRAPH_VERSION, "kind": kind, "file": run.relative(path),
             "data_file": run.relative(run.local_data_path), "model_file": run.relative(mpath),
             "model_sha256": file_sha256(mpath), "n_samples": int(nb.shape[1]), "inputs": ["offsets"],
             "twin_max_rel_error": twin_err,
-            "bytes": int(initializer_bytes(path) + nb.nbytes),
+            "bytes": int(initializer_bytes(path) + nb.astype(neighbour_dtype(nb.shape[0])).nbytes),
+            "tables": "fp16" if low["fp16_weights"] else "fp32",
             "parity": {**p.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes": path.stat().st_size}}

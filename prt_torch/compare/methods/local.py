@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, register
-from prt_torch.export.local_graph import offsets_inputs
+from prt_torch.export.local_graph import neighbour_dtype, offsets_inputs, table_lowering
 
 
 class LearnedLocal(MethodBase):
@@ -49,7 +49,7 @@ class LearnedLocal(MethodBase):
             self.source = "exported by prt compare"
         self.offsets = LocalOffsetsSoA(nb)
         self.graph = OrtGraph(path, threads=run.threads)
-        self._bytes = int(initializer_bytes(path) + nb.astype(np.int32).nbytes)
+        self._bytes = int(initializer_bytes(path) + nb.astype(neighbour_dtype(nb.shape[0])).nbytes)
         self.n_samples = int(nb.shape[1])
         self.runtime = f"numpy offsets + onnxruntime ({run.run.relative(path)}, {self.source})"
 
@@ -67,7 +67,8 @@ class LearnedLocal(MethodBase):
         path.parent.mkdir(parents=True, exist_ok=True)
         x = torch.zeros(1, 3 * nb.shape[1], nb.shape[0])
         export_onnx(model.head, [x], path, ("offsets",), ("visibility",), {"offsets": {0: "B"}, "visibility": {0: "B"}},
-                    metadata={"prt.graph": "local", "prt.model_kind": f"local_{self.kind}", "prt.precision": "fp32"})
+                    metadata={"prt.graph": "local", "prt.model_kind": f"local_{self.kind}", "prt.precision": "fp32"},
+                    **table_lowering(model.head))
         return path, nb
 
     def visibility(self, batch: FrameBatch) -> np.ndarray:
