@@ -27,6 +27,8 @@ from prt_torch.models.local import LocalVisibility, local_offsets, neighbour_pat
 
 #: frames per chunk when accumulating the linear normal equations / predicting
 CHUNK = 8
+#: version of the fitting code in each local model's key (2: per-vertex tables on the float16 grid)
+LOCAL_FIT_VERSION = 2
 
 
 def to_fp16_grid(x: torch.Tensor) -> torch.Tensor:
@@ -132,10 +134,10 @@ def fit_local_mlp(positions: np.ndarray, frames: np.ndarray, visibility: np.ndar
     with torch.no_grad():  # fold the standardisation and the rest terms into the first layer
         w0 = layers[0].weight.T / sd[:, None]  # (D, H0)
         c = layers[0].bias[None] - (mu / sd)[None] @ layers[0].weight.T + rest_in(z)  # (V, H0)
-        ws = [w0, *(lin.weight.T for lin in layers[1:])]
-        bs = [c, *(lin.bias for lin in layers[1:-1])]
         m = torch.from_numpy(mean) + layers[-1].bias[None]
         c, m = to_fp16_grid(c), to_fp16_grid(m)  # the per-vertex tables ship in float16, losslessly
+        ws = [w0, *(lin.weight.T for lin in layers[1:])]
+        bs = [c, *(lin.bias for lin in layers[1:-1])]
     return LocalVisibility("mlp", neighbours, [w.detach().numpy() for w in ws], [b.detach().numpy() for b in bs],
                            m.detach().numpy(),
                            _meta(cfg, "mlp")).eval()
@@ -174,7 +176,7 @@ def local_key(ds: Any, cfg: LocalConfig, seed: int) -> str:
 
     settings = cfg.model_dump(mode="json")
     settings.pop("default")  # which kind ships is not a fit setting
-    return stage_key({"local": settings, "seed": int(seed), "dataset": ds.key()})
+    return stage_key({"local": settings, "seed": int(seed), "dataset": ds.key(), "version": LOCAL_FIT_VERSION})
 
 
 def rest_geometry(ds: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -137,6 +137,10 @@ def test_mlp_learns_what_a_linear_model_cannot(waving_sheet: dict[str, np.ndarra
 
     lin, _ = fit_local("linear", w["pos"], w["frames"], y, w["rest"], w["rest_frames"], cfg, 0)
     mlp, _ = fit_local("mlp", w["pos"], w["frames"], y, w["rest"], w["rest_frames"], cfg, 0)
+    from prt_torch.export.local_graph import table_lowering
+
+    for m in (lin, mlp):  # fits leave the per-vertex tables on the float16 grid: the export stores them exactly
+        assert table_lowering(m.head)["fp16_weights"] is not None
     assert err(mlp) < 0.5 * err(lin), (err(mlp), err(lin))
     mlp2, _ = fit_local("mlp", w["pos"], w["frames"], y, w["rest"], w["rest_frames"], cfg, 0)
     for k, v in mlp.arrays().items():  # seeded: the same model again
