@@ -205,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
                  "sequence playback: pipeline / split": ("stream_pipeline", "stream_split"),
                  "sequence playback: pipeline / overlap": ("stream_pipeline", "stream_overlap")}
         if local_player is not None:
-            pairs.update({"visibility: local (offsets + local.onnx) / per-cluster (numpy features + pose graph)":
+            pairs.update({"visibility: local (offsets + network) / per-cluster (numpy features + pose graph)":
                           ("local_visibility", "visibility_numpy"),
                           "frame split: local / per-cluster": ("frame_split_local", "frame_split"),
                           "sequence playback: local pipeline / per-cluster pipeline":

@@ -46,3 +46,10 @@ class LocalOffsetsSoA:
                 o += d[1] * fi[3 * k + 1]
                 o += d[2] * fi[3 * k + 2]
         return out.reshape(b, 3 * s, v)
+
+
+def offsets_inputs(positions: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``positions (F, V, 3)``, ``frames (F, V, 3, 3)`` -> the player's vertex-last ``(F, 3, V)``, ``(F, 9, V)``."""
+    p = np.ascontiguousarray(np.asarray(positions, np.float32).transpose(0, 2, 1))
+    f = np.asarray(frames, np.float32)
+    return p, np.ascontiguousarray(f.reshape(f.shape[0], f.shape[1], 9).transpose(0, 2, 1))

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import check
 from prt_torch.rundir import RunDir
 
 #: version of the shipped local graph (part of the export key when one ships)
@@ -41,20 +41,6 @@ def shipped_local_kind(run: RunDir) -> str | None:
     return kind
 
 
-def load_neighbours(run: RunDir) -> np.ndarray:
-    """``(V, S)`` int32 neighbour indices of the shipped local model (one-line error when missing or damaged)."""
-    path = run.local_data_path
-    if not path.is_file():
-        raise PrtError(f"{path} not found: run `prt export {run.path}`")
-    try:
-        with np.load(path) as d:
-            nb = np.asarray(d["neighbours"], dtype=np.int32)
-    except Exception as exc:  # noqa: BLE001 - any read problem is a damaged file
-        raise PrtError(f"{path}: not a local model data file ({type(exc).__name__})") from None
-    check(nb.ndim == 2 and nb.size > 0, f"{path}: neighbours must be (V, S), got {nb.shape}")
-    return nb
-
-
 #: the per-vertex tables of a LocalHead (ONNX initializer names), stored in float16 when they are on its grid
 FP16_TABLES = r"(^|\.)(b0|mean)$"
 
@@ -70,28 +56,16 @@ def table_lowering(head: Any) -> dict[str, str | None]:
     return {"fp16_weights": FP16_TABLES if exact else None}
 
 
-def neighbour_dtype(n_vertices: int) -> Any:
-    """int16 indices up to 32,767 vertices, else int32 (``local.npz``)."""
-    return np.int16 if n_vertices <= np.iinfo(np.int16).max + 1 else np.int32
-
-
-def offsets_inputs(positions: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``positions (F, V, 3)``, ``frames (F, V, 3, 3)`` -> the player's vertex-last ``(F, 3, V)``, ``(F, 9, V)``."""
-    p = np.ascontiguousarray(np.asarray(positions, np.float32).transpose(0, 2, 1))
-    f = np.asarray(frames, np.float32)
-    return p, np.ascontiguousarray(f.reshape(f.shape[0], f.shape[1], 9).transpose(0, 2, 1))
-
-
 def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: dict[str, Any], rtol: float,
                opset: int = 17, exporter: str = "torchscript") -> dict[str, Any]:
     """Write ``local.npz`` and ``local.onnx`` for the run's local ``kind``; check the numpy twin and the parity on
     ``held`` (``positions (F, V, 3)``, ``frames (F, V, 3, 3)``). Returns the ``export.json`` ``local`` entry."""
     import torch
 
-    from prt_torch.deform.local_soa import LocalOffsetsSoA
+    from prt_torch.deform.local_soa import LocalOffsetsSoA, offsets_inputs
+    from prt_torch.export.local_data import write_neighbours
     from prt_torch.export.onnx_file import export_onnx, initializer_bytes
     from prt_torch.export.parity import check_parity
-    from prt_torch.io import atomic_path
     from prt_torch.models.local import load_local, local_offsets
     from prt_torch.rundir import file_sha256
 
@@ -109,15 +83,13 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
     twin_err = float(np.abs(x - ref).max() / max(float(np.abs(ref).max()), 1e-30))
     check(twin_err <= TWIN_RTOL, f"{run.path}: the numpy local offsets differ from the torch rule by {twin_err:.3g} "
                                  f"(> {TWIN_RTOL})")
-    with atomic_path(run.local_data_path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, neighbours=nb.astype(neighbour_dtype(nb.shape[0])))
+    nb_bytes = write_neighbours(run, nb)
     path = run.local_graph_path
     batch = {0: "B"}
     meta = {**base_meta, "prt.graph": "local", "prt.model_kind": f"local_{kind}", "prt.vertex_order": "original",
             "prt.model_sha256": file_sha256(mpath),
             "prt.offsets": "offsets input (B, 3 S, V): row k S + s = frame row k (t, b, n) . (p_neighbour_s - p), "
-                           "neighbours in local.npz"}
+                           f"neighbours in {run.local_data_path.name}"}
     low = table_lowering(model.head)
     meta["prt.precision"] = "fp32 (per-vertex tables fp16)" if low["fp16_weights"] else "fp32"
     export_onnx(model.head, [torch.from_numpy(x)], path, ("offsets",), ("visibility",),
@@ -127,6 +99,6 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
             "data_file": run.relative(run.local_data_path), "model_file": run.relative(mpath),
             "model_sha256": file_sha256(mpath), "n_samples": int(nb.shape[1]), "inputs": ["offsets"],
             "twin_max_rel_error": twin_err,
-            "bytes": int(initializer_bytes(path) + nb.astype(neighbour_dtype(nb.shape[0])).nbytes),
+            "bytes": int(initializer_bytes(path) + nb_bytes),
             "tables": "fp16" if low["fp16_weights"] else "fp32",
             "parity": {**p.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes": path.stat().st_size}}

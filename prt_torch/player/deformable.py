@@ -140,7 +140,7 @@ class DeformablePlayer(Player):
               f"{run.path} ships no local visibility model (train.local.default): play it without local=True")
         if isinstance(shipped, dict) and local is not False:
             from prt_torch.deform.local_soa import LocalOffsetsSoA
-            from prt_torch.export.local_graph import load_neighbours
+            from prt_torch.export.local_data import load_neighbours
 
             check(graph in ("split", "pipeline"),
                   f"{run.path} ships a local visibility model (local_{shipped.get('kind')}), which needs the frames "

@@ -19,9 +19,8 @@ from scipy.spatial.transform import Rotation
 
 from prt_torch.deform.clusters import spatial_clusters
 from prt_torch.deform.frames import FrameOperator
-from prt_torch.deform.local_soa import LocalOffsetsSoA
+from prt_torch.deform.local_soa import LocalOffsetsSoA, offsets_inputs
 from prt_torch.errors import PrtError
-from prt_torch.export.local_graph import offsets_inputs
 from prt_torch.fit.config import LocalConfig
 from prt_torch.fit.local import fit_local, fit_local_linear
 from prt_torch.models.local import (

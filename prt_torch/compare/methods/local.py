@@ -17,7 +17,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, register
-from prt_torch.export.local_graph import neighbour_dtype, offsets_inputs, table_lowering
+from prt_torch.deform.local_soa import offsets_inputs
+from prt_torch.export.local_data import neighbour_dtype
 
 
 class LearnedLocal(MethodBase):
@@ -40,7 +41,7 @@ class LearnedLocal(MethodBase):
         shipped = (run.export_meta or {}).get("local")
         if isinstance(shipped, dict) and shipped.get("kind") == self.kind and run.run.local_graph_path.is_file() \
                 and shipped.get("model_sha256") == file_sha256(mpath):
-            from prt_torch.export.local_graph import load_neighbours
+            from prt_torch.export.local_data import load_neighbours
 
             path, self.source = run.run.local_graph_path, "shipped"
             nb = load_neighbours(run.run)
@@ -56,6 +57,7 @@ class LearnedLocal(MethodBase):
     def _export(self, run: CompareRun, mpath: Path) -> tuple[Path, np.ndarray]:
         import torch
 
+        from prt_torch.export.local_graph import table_lowering
         from prt_torch.export.onnx_file import export_onnx
         from prt_torch.models.local import load_local
 
