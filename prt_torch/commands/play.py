@@ -187,6 +187,7 @@ def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
     console = Console(stderr=True)
     player = DeformablePlayer(args.run, env=args.env, brdf=args.brdf, graph=graph, threads=args.threads,
                               window_size=(h, w), device=args.device)
+    visibility = "local network" if player.local_graph is not None else "dihedral angles + pose graph"
     try:
         if args.light_angle:
             player.rotate_light(np.radians(args.light_angle))
@@ -195,8 +196,8 @@ def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
     finally:
         player.close()
     s = res.summary
-    console.print(f"{res.frames} frames of {args.sequence!r}: compute path {s.get('compute_fps', 0):.0f} frames/s "
-                  f"({s.get('compute_ms_median', 0):.2f} ms: frames + positions graph + shading), with rendering "
+    console.print(f"{res.frames} frames of {args.sequence!r} ({graph}): compute path {s.get('compute_fps', 0):.0f} "
+                  f"frames/s ({s.get('compute_ms_median', 0):.2f} ms: frames + {visibility} + shading), with rendering "
                   f"{s.get('total_fps', 0):.1f} frames/s")
     for p in res.outputs:
         console.print(f"wrote {p}")
