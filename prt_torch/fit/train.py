@@ -404,6 +404,8 @@ def cv_train_only(ds: BakedDataset, train: SplitData, cfg: TrainConfig) -> np.nd
 def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
     train = ds.split("train")
     check(train.n_frames >= 2 * cfg.folds, f"{ds.path}: only {train.n_frames} training frames for {cfg.folds} folds")
+    check(cfg.local is None or bool(ds.attrs.get("deformable", False)),
+          f"{ds.path}: train.local needs a deformable (cloth) dataset")  # before anything is fitted or written
     # the stage's files; model.json (written last, with their sha256) commits them (see unit_files)
     run.begin("train", (*unit_files(run, cfg.kinds), run.model_json))
     skinning = load_skinning(ds) if cfg.input_selection == "joints" else None

@@ -217,3 +217,21 @@ def test_fp16_tables_are_stored_exactly(tmp_path: Path, waving_sheet: dict[str, 
         np.testing.assert_allclose(out, m.head(torch.from_numpy(x)).detach().numpy(), rtol=1e-5, atol=1e-5)
         sizes[grid] = initializer_bytes(path)
     assert sizes[True] < 0.6 * sizes[False], sizes
+
+
+def test_train_local_on_a_skinned_dataset_is_one_line_error(synthetic_dataset: Path, tmp_path: Path) -> None:
+    """``train.local`` needs a deformable dataset; bad local settings are refused by the config."""
+    from pydantic import ValidationError
+
+    from prt_torch.fit.config import TrainConfig
+    from prt_torch.fit.train import train_dataset
+
+    cfg = TrainConfig(kinds=["linear"], folds=2, alphas=[1.0], local=LocalConfig(steps=1))
+    with pytest.raises(PrtError, match="train.local needs a deformable") as e:
+        train_dataset(synthetic_dataset, tmp_path / "run", cfg)
+    assert "\n" not in str(e.value)
+    assert not list((tmp_path / "run").rglob("*.pt"))  # refused before anything was fitted
+    for bad in ({"radii": [-0.1]}, {"hidden": [0]}, {"kinds": ["linear"], "default": "mlp"}, {"kinds": ["cubic"]},
+                {"lr": float("nan")}):
+        with pytest.raises(ValidationError):
+            LocalConfig(**bad)
