@@ -277,7 +277,7 @@ def fit_s001(ds: BakedDataset, scfg: S001Config, skinning: tuple[np.ndarray, np.
 
 
 def s001_key(ds: BakedDataset, scfg: S001Config) -> str:
-    return stage_key({"s001": scfg.model_dump(mode="json"), "dataset": ds.key})
+    return stage_key({"s001": scfg.model_dump(mode="json"), "dataset": ds.key()})
 
 
 def train_s001(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any = None) -> dict[str, Any] | None:

@@ -84,8 +84,9 @@ def test_heldout_interpolation_beats_the_mean_pose(run: Path) -> None:
 
 
 def test_train_again_keeps_a_current_file(run: Path, s001_run: tuple[Path, Path]) -> None:
+    from prt_torch.bake.store import BakedDataset
     from prt_torch.config import load_config
-    from prt_torch.fit.s001 import train_s001
+    from prt_torch.fit.s001 import s001_key, train_s001
     from prt_torch.rundir import RunDir
 
     cfg = load_config(s001_run[0])
@@ -93,6 +94,21 @@ def test_train_again_keeps_a_current_file(run: Path, s001_run: tuple[Path, Path]
     before = rd.s001.stat().st_mtime_ns
     meta = train_s001(rd.dataset(), rd, cfg.train)
     assert meta is not None and rd.s001.stat().st_mtime_ns == before
+    # the key follows the dataset's content key (a re-bake with other settings but the same frame counts refits)
+    class Store:
+        def __init__(self, key: str) -> None:
+            self._key = key
+
+        def __repr__(self) -> str:
+            return "Store()"
+
+        def key(self) -> str:
+            return self._key
+
+    scfg = cfg.train.s001
+    assert s001_key(Store("a"), scfg) != s001_key(Store("b"), scfg)
+    assert s001_key(Store("a"), scfg) == s001_key(Store("a"), scfg)
+    assert s001_key(BakedDataset(rd.dataset_path), scfg) == meta["key"]
 
 
 def test_bad_input_is_one_line(run: Path, synthetic_dataset: Path) -> None:
