@@ -44,9 +44,8 @@ def main() -> None:
         img_l = p.render_frame(state, rad_l)
         img_u = p.render_frame(state, unsh)
         err = float(np.abs(rad_l - rad_t).mean() / np.abs(rad_t).mean())
-        local = p.bundle.meta.get("local")  # the shipped local network plays when there is one
-        kind = f"local_{local['kind']}" if p.local_graph is not None and isinstance(local, dict) else \
-            f"{p.bundle.meta['model_kind']}, {p.bundle.precision}"
+        kind = f"local_{p.bundle.meta['local']['kind']}" if p.local_graph is not None else \
+            f"{p.bundle.meta['model_kind']}, {p.bundle.precision}"  # the shipped local network plays when there is one
         strip = image_strip(
             [img_u, img_t, img_l],
             ["unshadowed (no visibility)", f"ray-traced truth (Embree, {ds.attrs['bake']['n_rays']} rays)",

@@ -94,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
         check(p in PRECISIONS, f"--precisions: unknown precision {p!r} (expected {list(PRECISIONS)})")
     console = Console(stderr=True)
     run_dir = RunDir(args.run)
-    has_local = isinstance(run_dir.export_meta().get("local"), dict)
+    local_meta = run_dir.export_meta().get("local")
+    local_kind = local_meta.get("kind") if isinstance(local_meta, dict) else None  # the shipped local network's
+    has_local = local_kind is not None
 
     def make(graph: str, threads: int = args.threads, **kw: Any) -> DeformablePlayer:
         kw.setdefault("local", False if has_local else None)  # the per-cluster rows play the per-cluster model
@@ -224,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
             "fps_pipeline": 1e3 / ms["stream_pipeline"], "fps_stream_split": 1e3 / ms["stream_split"],
             **({"fps_pipeline_local": 1e3 / ms["stream_pipeline_local"],
                 "fps_stream_split_local": 1e3 / ms["stream_split_local"],
-                "local": run_dir.export_meta()["local"]["kind"]} if local_player is not None else {}),
+                "local": local_kind} if local_player is not None else {}),
             "fps_variants": {k: 1e3 / ms[k] for k in variants if k in ms}, "ratios": ratios,
             "steps_ms": ms, "features_ms": feat_graph,
             "bytes_model": mbytes, "roofline": {"frame_bound_ms": frame_bound, "roofline_fraction": frame_bound / best,

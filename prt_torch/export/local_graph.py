@@ -56,6 +56,24 @@ def table_lowering(head: Any) -> dict[str, str | None]:
     return {"fp16_weights": FP16_TABLES if exact else None}
 
 
+def export_head(head: Any, offsets: np.ndarray, path: Any, metadata: dict[str, Any], opset: int = 17,
+                exporter: str = "torchscript") -> bool:
+    """Export a :class:`~prt_torch.models.local.LocalHead` to ``path`` (``offsets (B, 3 S, V) -> visibility``, batch
+    axis dynamic, ``offsets`` the example input), its per-vertex tables in float16 when they are exact
+    (:func:`table_lowering`). Returns whether they are."""
+    import torch
+
+    from prt_torch.export.onnx_file import export_onnx
+
+    low = table_lowering(head)
+    fp16 = low["fp16_weights"] is not None
+    meta = {**metadata, "prt.graph": "local", "prt.precision": "fp32 (per-vertex tables fp16)" if fp16 else "fp32"}
+    export_onnx(head, [torch.from_numpy(np.ascontiguousarray(offsets, np.float32))], path, ("offsets",),
+                ("visibility",), {"offsets": {0: "B"}, "visibility": {0: "B"}}, metadata=meta, opset=opset,
+                exporter=exporter, **low)
+    return fp16
+
+
 def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: dict[str, Any], rtol: float,
                opset: int = 17, exporter: str = "torchscript") -> dict[str, Any]:
     """Write ``local.npz`` and ``local.onnx`` for the run's local ``kind``; check the numpy twin and the parity on
@@ -64,7 +82,7 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
 
     from prt_torch.deform.local_soa import LocalOffsetsSoA, offsets_inputs
     from prt_torch.export.local_data import write_neighbours
-    from prt_torch.export.onnx_file import export_onnx, initializer_bytes
+    from prt_torch.export.onnx_file import initializer_bytes
     from prt_torch.export.parity import check_parity
     from prt_torch.models.local import load_local, local_offsets
     from prt_torch.rundir import file_sha256
@@ -85,20 +103,16 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
                                  f"(> {TWIN_RTOL})")
     nb_bytes = write_neighbours(run, nb)
     path = run.local_graph_path
-    batch = {0: "B"}
-    meta = {**base_meta, "prt.graph": "local", "prt.model_kind": f"local_{kind}", "prt.vertex_order": "original",
+    meta = {**base_meta, "prt.model_kind": f"local_{kind}", "prt.vertex_order": "original",
             "prt.model_sha256": file_sha256(mpath),
             "prt.offsets": "offsets input (B, 3 S, V): row k S + s = frame row k (t, b, n) . (p_neighbour_s - p), "
                            f"neighbours in {run.local_data_path.name}"}
-    low = table_lowering(model.head)
-    meta["prt.precision"] = "fp32 (per-vertex tables fp16)" if low["fp16_weights"] else "fp32"
-    export_onnx(model.head, [torch.from_numpy(x)], path, ("offsets",), ("visibility",),
-                {"offsets": batch, "visibility": batch}, metadata=meta, opset=opset, exporter=exporter, **low)
+    fp16 = export_head(model.head, x, path, meta, opset=opset, exporter=exporter)
     p = check_parity(model.head, path, {"offsets": x}, rtol=rtol)
     return {"version": LOCAL_GRAPH_VERSION, "kind": kind, "file": run.relative(path),
             "data_file": run.relative(run.local_data_path), "model_file": run.relative(mpath),
             "model_sha256": file_sha256(mpath), "n_samples": int(nb.shape[1]), "inputs": ["offsets"],
             "twin_max_rel_error": twin_err,
             "bytes": int(initializer_bytes(path) + nb_bytes),
-            "tables": "fp16" if low["fp16_weights"] else "fp32",
+            "tables": "fp16" if fp16 else "fp32",
             "parity": {**p.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes": path.stat().st_size}}

@@ -191,34 +191,25 @@ def rest_geometry(ds: Any) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(ch.rest_vertices, np.float32), np.asarray(op.rest_frames, np.float32)
 
 
-def train_local(ds: Any, run: Any, cfg: Any, progress: Any = None) -> dict[str, Any] | None:
-    """The ``train.local`` part of ``prt train`` (``cfg``: the :class:`TrainConfig`): fit each local kind whose
-    file is missing or stale (its recorded :func:`local_key`), write it atomically, and return the metrics
-    ``{kind: {fit_s, train, heldout}}``; without ``train.local`` stale local files are removed (``None``)."""
-    from prt_torch.bake.deformable import is_deformable
+def train_local(ds: Any, run: Any, cfg: Any, splits: dict[str, Any], progress: Any = None) -> dict[str, Any] | None:
+    """The ``train.local`` part of ``prt train`` (``cfg``: the :class:`TrainConfig`; ``splits``: its ``train`` and
+    ``heldout`` :class:`~prt_torch.bake.store.SplitData`, read with ``positions`` and ``frames``): fit each local kind
+    whose file is missing or stale (its recorded :func:`local_key`), write it atomically, and return the metrics
+    ``{kind: {fit_s, bytes, train, heldout}}``; without ``train.local`` stale local files are removed (``None``)."""
     from prt_torch.errors import PrtError
     from prt_torch.metrics import vis_rel_err
     from prt_torch.models.local import LOCAL_KINDS, load_local, save_local
 
     lcfg: LocalConfig | None = cfg.local
-    if lcfg is None:
-        for k in LOCAL_KINDS:
+    for k in LOCAL_KINDS:
+        if lcfg is None or k not in lcfg.kinds:
             run.local_model_path(k).unlink(missing_ok=True)
+    if lcfg is None:
         return None
-    check(is_deformable(ds.attrs), f"{ds.path}: train.local needs a deformable (cloth) dataset")
     key = local_key(ds, lcfg, cfg.seed)
-    train = ds.split("train", extra=("positions", "frames"))
-    splits = {"train": train}
-    if "heldout" in ds.splits:
-        try:
-            splits["heldout"] = ds.split("heldout", extra=("positions", "frames"), max_frames=cfg.eval_frames)
-        except PrtError:
-            pass
+    train = splits["train"]
     rest, rest_frames = rest_geometry(ds)
     out: dict[str, Any] = {}
-    for k in LOCAL_KINDS:
-        if k not in lcfg.kinds:
-            run.local_model_path(k).unlink(missing_ok=True)
     for kind in lcfg.kinds:
         path = run.local_model_path(kind)
         model = None

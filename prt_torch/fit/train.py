@@ -402,10 +402,13 @@ def cv_train_only(ds: BakedDataset, train: SplitData, cfg: TrainConfig) -> np.nd
 
 
 def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
-    train = ds.split("train")
-    check(train.n_frames >= 2 * cfg.folds, f"{ds.path}: only {train.n_frames} training frames for {cfg.folds} folds")
-    check(cfg.local is None or bool(ds.attrs.get("deformable", False)),
+    from prt_torch.bake.deformable import is_deformable
+
+    check(cfg.local is None or is_deformable(ds.attrs),
           f"{ds.path}: train.local needs a deformable (cloth) dataset")  # before anything is fitted or written
+    extra = ("positions", "frames") if cfg.local is not None else ()  # what the local models learn from
+    train = ds.split("train", extra=extra)
+    check(train.n_frames >= 2 * cfg.folds, f"{ds.path}: only {train.n_frames} training frames for {cfg.folds} folds")
     # the stage's files; model.json (written last, with their sha256) commits them (see unit_files)
     run.begin("train", (*unit_files(run, cfg.kinds), run.model_json))
     skinning = load_skinning(ds) if cfg.input_selection == "joints" else None
@@ -423,7 +426,7 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     splits = {"train": train}
     if "heldout" in ds.splits:
         try:
-            splits["heldout"] = ds.split("heldout", max_frames=cfg.eval_frames)
+            splits["heldout"] = ds.split("heldout", extra=extra, max_frames=cfg.eval_frames)
         except PrtError:
             pass
     for kind, r in fits.items():
@@ -440,7 +443,7 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
         metrics["transfer"] = transfer
     from prt_torch.fit.local import train_local  # local visibility models (train.local; else removed)
 
-    local = train_local(ds, run, cfg, progress)
+    local = train_local(ds, run, cfg, splits, progress)
     if local is not None:
         metrics["local"] = local
     from prt_torch.fit.s001 import train_s001  # seed 001 compressed transfer matrices (train.s001; else removed)

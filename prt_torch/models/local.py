@@ -69,25 +69,25 @@ def neighbour_pattern(rest: np.ndarray, rest_frames: np.ndarray, radii: list[flo
     return np.asarray(idx, dtype=np.int64).reshape(x.shape[0], -1)
 
 
+def in_frame(offsets: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+    """``offsets (..., S, 3)`` world, ``frames (..., 3, 3)`` (rows t, b, n) -> ``(..., 3 S)``: the offsets in the
+    frame, component-major (``S`` t-components, then ``S`` b-, then ``S`` n-components)."""
+    loc = (offsets[..., None, :] * frames[..., None, :, :]).sum(-1)  # (..., S, 3): F @ offset
+    return loc.transpose(-1, -2).flatten(-2)
+
+
 def local_offsets(positions: torch.Tensor, frames: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
     """``positions (B, V, 3)``, ``frames (B, V, 3, 3)`` (rows t, b, n), ``neighbours (V, S)`` ->
-    ``(B, V, 3 S)``: each neighbour's offset from the vertex in the vertex's frame, component-major
-    (``S`` t-components, then ``S`` b-, then ``S`` n-components).
-
-    Written per coordinate (gather each coordinate's ``(B, V, S)`` neighbour values, then 9 broadcast
-    multiply-adds with the frame entries), which onnxruntime runs as a few large element-wise ops."""
-    d = [positions[:, :, c][:, neighbours] - positions[:, :, c, None] for c in range(3)]  # 3 x (B, V, S)
-    rows = [sum(d[c] * frames[:, :, k, c, None] for c in range(3)) for k in range(3)]
-    return torch.cat(rows, dim=-1)
+    ``(B, V, 3 S)``: each neighbour's offset from the vertex in the vertex's frame (:func:`in_frame`)."""
+    return in_frame(positions[:, neighbours] - positions[:, :, None], frames)
 
 
 def sample_offsets(positions: torch.Tensor, frames: torch.Tensor, neighbours: torch.Tensor,
                    frame_idx: torch.Tensor, vertex_idx: torch.Tensor) -> torch.Tensor:
     """:func:`local_offsets` of single (frame, vertex) samples: ``positions (F, V, 3)``, ``frames (F, V, 3, 3)``,
-    ``frame_idx``, ``vertex_idx (N,)`` -> ``(N, 3 S)`` (the training batches; the same rule and order)."""
+    ``frame_idx``, ``vertex_idx (N,)`` -> ``(N, 3 S)`` (the training batches; the same rule)."""
     off = positions[frame_idx[:, None], neighbours[vertex_idx]] - positions[frame_idx, vertex_idx][:, None]
-    loc = (off[:, :, None, :] * frames[frame_idx, vertex_idx][:, None, :, :]).sum(-1)  # (N, S, 3)
-    return loc.transpose(1, 2).reshape(frame_idx.shape[0], -1)
+    return in_frame(off, frames[frame_idx, vertex_idx])
 
 
 class LocalHead(nn.Module):
@@ -153,8 +153,11 @@ class LocalVisibility(nn.Module):
               f"local model: {self.head.n_inputs} inputs and {self.head.mean.shape[0]} vertices for neighbours "
               f"{tuple(nb.shape)}")
         self.register_buffer("neighbours", nb)
-        self.kind = kind
         self.meta = dict(meta or {})
+
+    @property
+    def kind(self) -> str:
+        return self.head.kind
 
     @property
     def n_vertices(self) -> int:

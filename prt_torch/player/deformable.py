@@ -249,10 +249,11 @@ class DeformablePlayer(Player):
         """``positions (B, V, 3)`` [+ ``body (B, Ab)``] -> ``(B, V, C)`` local visibility (ORT positions graph;
         a run shipping a local network: its frames, offsets and ``local.onnx``)."""
         if self.local_graph is not None:
-            p = np.ascontiguousarray(np.asarray(positions, np.float32).transpose(0, 2, 1))
-            if checked:
-                check(p.ndim == 3 and p.shape[1:] == (3, self.bundle.n_vertices) and np.isfinite(p).all(),
-                      f"positions must be finite (B, {self.bundle.n_vertices}, 3), got {np.shape(positions)}")
+            pos = np.asarray(positions, np.float32)
+            if checked:  # before the transpose, which needs three axes
+                check(pos.ndim == 3 and pos.shape[1:] == (self.bundle.n_vertices, 3) and np.isfinite(pos).all(),
+                      f"positions must be finite (B, {self.bundle.n_vertices}, 3), got {pos.shape}")
+            p = np.ascontiguousarray(pos.transpose(0, 2, 1))
             return self._local_visibility(p, self.frames(p))
         feeds = self._vis_feeds(positions, body)
         g = self.positions_graph
@@ -344,9 +345,10 @@ class DeformablePlayer(Player):
             from concurrent.futures import ThreadPoolExecutor
 
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prt-visibility")
-            path = self.positions_graph.path if self.features == "graph" else self.bundle.graphs["visibility"].path
             if self.local_graph is not None:
                 path = self.local_graph.path
+            else:
+                path = self.positions_graph.path if self.features == "graph" else self.bundle.graphs["visibility"].path
             self._vis_overlap = OrtGraph(path, threads=1, spinning=self._spinning, device=self.device)
         return self._pool
 

@@ -50,15 +50,13 @@ class LearnedLocal(MethodBase):
             self.source = "exported by prt compare"
         self.offsets = LocalOffsetsSoA(nb)
         self.graph = OrtGraph(path, threads=run.threads)
+        self.precision = str(self.graph.metadata.get("prt.precision", "fp32"))
         self._bytes = int(initializer_bytes(path) + nb.astype(neighbour_dtype(nb.shape[0])).nbytes)
         self.n_samples = int(nb.shape[1])
         self.runtime = f"numpy offsets + onnxruntime ({run.run.relative(path)}, {self.source})"
 
     def _export(self, run: CompareRun, mpath: Path) -> tuple[Path, np.ndarray]:
-        import torch
-
-        from prt_torch.export.local_graph import table_lowering
-        from prt_torch.export.onnx_file import export_onnx
+        from prt_torch.export.local_graph import export_head
         from prt_torch.models.local import load_local
 
         model = load_local(mpath)
@@ -67,10 +65,8 @@ class LearnedLocal(MethodBase):
         if path.is_file() and path.stat().st_mtime >= mpath.stat().st_mtime:
             return path, nb
         path.parent.mkdir(parents=True, exist_ok=True)
-        x = torch.zeros(1, 3 * nb.shape[1], nb.shape[0])
-        export_onnx(model.head, [x], path, ("offsets",), ("visibility",), {"offsets": {0: "B"}, "visibility": {0: "B"}},
-                    metadata={"prt.graph": "local", "prt.model_kind": f"local_{self.kind}", "prt.precision": "fp32"},
-                    **table_lowering(model.head))
+        export_head(model.head, np.zeros((1, 3 * nb.shape[1], nb.shape[0]), np.float32), path,
+                    {"prt.model_kind": f"local_{self.kind}"})
         return path, nb
 
     def visibility(self, batch: FrameBatch) -> np.ndarray:
@@ -81,8 +77,8 @@ class LearnedLocal(MethodBase):
         return self._bytes
 
     def info(self) -> dict[str, Any]:
-        return {"kind": f"local_{self.kind}", "graph": self.source, "precision": "fp32", "input": "positions+frames",
-                "n_samples": self.n_samples}
+        return {"kind": f"local_{self.kind}", "graph": self.source, "precision": self.precision,
+                "input": "positions+frames", "n_samples": self.n_samples}
 
 
 @register
