@@ -19,8 +19,9 @@ frame by frame in ``--repeats`` blocks, medians reported (:class:`prt_torch.play
 * ``stream_<mode>``: sequence playback (``compute_stream`` over the held-out frames, wall time / frames): split and
   overlap one frame at a time, pipeline with the next frame's stage in flight (one frame of latency);
 * a run shipping a LOCAL network (``export.json`` ``local``): every row above plays the per-cluster model
-  (``local=False``), and ``local_offsets`` (numpy), ``local_visibility`` (offsets + ``local.onnx``),
-  ``frame_split_local``, ``stream_split_local`` and ``stream_pipeline_local`` play the local one;
+  (``local=False``), and ``local_offsets`` (numba; ``local_offsets_numpy`` the numpy rule beside it),
+  ``local_visibility`` (offsets + ``local.onnx``), ``frame_split_local``, ``stream_split_local`` and
+  ``stream_pipeline_local`` (two whole frames in flight) play the local one;
 * ``ratios``: new / old of each compared pair, side by side (``< 1``: the new variant is faster);
 * the roofline of :mod:`prt_torch.commands.bench_play` (copy bandwidth, GEMM rate, bytes and FLOPs per step) for the
   frame's lower bound and ``roofline_fraction``.
@@ -108,8 +109,11 @@ def run(args: argparse.Namespace) -> int:
                 "frame_overlap_graphfeat": make("overlap", features="graph"), "frame_fused": make("fused"),
                 "frame_fused_graphfeat": make("fused", features="graph")}
     local_player = make("split", local=True) if has_local else None
-    if local_player is not None:  # the shipped local network: frames, numpy offsets, local.onnx
+    if local_player is not None:  # the shipped local network: frames, offsets (numba), local.onnx
         variants["frame_split_local"] = local_player
+        from prt_torch.deform.local_soa import LocalOffsetsSoA
+
+        numpy_offsets = LocalOffsetsSoA(local_player.local_offsets.neighbours, engine="numpy")
     try:
         ds = run_dir.dataset()
         rows = ds.split_rows("heldout") if "heldout" in ds.splits else np.flatnonzero(ds.done)
@@ -130,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
             times: dict[str, list[float]] = {k: [] for k in ("frames", "features_numpy", "visibility_numpy",
                                                              "visibility_pose", "shading", *variants,
                                                              *(f"positions_{p}" for p in graphs),
-                                                             *(("local_offsets", "local_visibility")
+                                                             *(("local_offsets", "local_offsets_numpy",
+                                                                "local_visibility")
                                                                if local_player is not None else ()))}
             vis_pose = player.bundle.graphs["visibility"]
             shade_vis = player.visibility_from_positions(pos[:1], None if body is None else body[:1])
@@ -148,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
                          *((f"positions_{p}", (lambda g=g: g.run_unchecked(feeds))) for p, g in graphs.items())]
                 if local_player is not None:
                     steps += [("local_offsets", lambda: local_player.local_offsets(s_i, state.frames)),
+                              ("local_offsets_numpy", lambda: numpy_offsets(s_i, state.frames)),
                               ("local_visibility", lambda: local_player._local_visibility(s_i, state))]
                 state = player.frames(s_i)
                 k = i % len(steps)  # rotate the order each frame
@@ -207,7 +213,8 @@ def run(args: argparse.Namespace) -> int:
                  "sequence playback: pipeline / split": ("stream_pipeline", "stream_split"),
                  "sequence playback: pipeline / overlap": ("stream_pipeline", "stream_overlap")}
         if local_player is not None:
-            pairs.update({"visibility: local (offsets + network) / per-cluster (numpy features + pose graph)":
+            pairs.update({"local offsets: numba / numpy": ("local_offsets", "local_offsets_numpy"),
+                          "visibility: local (offsets + network) / per-cluster (numpy features + pose graph)":
                           ("local_visibility", "visibility_numpy"),
                           "frame split: local / per-cluster": ("frame_split_local", "frame_split"),
                           "sequence playback: local pipeline / per-cluster pipeline":

@@ -11,8 +11,8 @@ numpy + onnxruntime only (never torch). Per frame (:meth:`DeformablePlayer.compu
     [split]   features="numpy" (default): numpy dihedral angles (DihedralSoA, vertex-last) [+ body] -> ORT
               visibility.onnx (the pose graph: the same model) --> visibility (B, V, C)    ("visibility")
               features="graph": ORT positions.onnx: dihedral angles -> model --> visibility (B, V, C)
-              a run shipping a LOCAL network (export.json ``local``): frames first, then numpy neighbour offsets
-              (LocalOffsetsSoA) -> ORT local.onnx --> visibility (B, V, C); split and pipeline only
+              a run shipping a LOCAL network (export.json ``local``): frames first, then the neighbour offsets
+              (LocalOffsetsSoA, numba) -> ORT local.onnx --> visibility (B, V, C); split and pipeline only
               ORT shading.onnx (the skinned player's Player.shade)--> radiance (B, V, 3)     ("shading")
     [overlap] split, with the features + model on a worker thread while numpy computes the frames
     [pipeline] playback of a sequence (:meth:`DeformablePlayer.compute_stream`): a worker thread computes frame
@@ -20,6 +20,8 @@ numpy + onnxruntime only (never torch). Per frame (:meth:`DeformablePlayer.compu
               session runs on one thread (the two stages fill two cores). Throughput, at one frame of latency: the
               next frame's positions must be known one frame ahead (a cache, or a simulation running a frame ahead,
               as engines run the simulation ahead of the renderer). Single frames (:meth:`compute`) run as split.
+              A local run: two WHOLE frames in flight, one per worker thread (its stages do not split evenly),
+              two frames of latency (:meth:`DeformablePlayer._stream_whole_frames`).
 
 The numpy features are ~4x faster than the positions graph's (onnxruntime's Gather of the 4 corners of 22k edges
 is ~0.7 ms; numpy's ``take`` of contiguous coordinate rows ~0.15 ms: :mod:`prt_torch.deform.dihedral_soa`), and the
@@ -231,12 +233,11 @@ class DeformablePlayer(Player):
             return (graph or self.positions_graph).run_unchecked(self._vis_feeds(positions, body))[0]
         return self._visibility_numpy(positions_soa, body, graph)
 
-    def _local_visibility(self, positions_soa: np.ndarray, state: PoseBatch,
-                          graph: OrtGraph | None = None) -> np.ndarray:
-        """``(B, V, C)`` visibility of the shipped local network: the numpy neighbour offsets of the positions in
-        ``state``'s frames, then ``local.onnx`` (``graph``: another session of it, the pipeline worker's)."""
+    def _local_visibility(self, positions_soa: np.ndarray, state: PoseBatch) -> np.ndarray:
+        """``(B, V, C)`` visibility of the shipped local network: the neighbour offsets of the positions in
+        ``state``'s frames (numba), then ``local.onnx`` (one session, also shared by the pipeline's workers)."""
         x = self.local_offsets(positions_soa, state.frames)
-        return (graph or self.local_graph).run_unchecked({"offsets": x})[0]  # type: ignore[union-attr]
+        return self.local_graph.run_unchecked({"offsets": x})[0]  # type: ignore[union-attr]
 
     def _vis_feeds(self, positions: np.ndarray, body: np.ndarray | None) -> dict[str, np.ndarray]:
         feeds = {"positions": np.ascontiguousarray(positions, dtype=np.float32)}
@@ -309,9 +310,6 @@ class DeformablePlayer(Player):
     def _stage(self, frame: Any) -> tuple[PoseBatch, np.ndarray]:
         """The pipeline's worker stage for ``frame = (positions, positions_soa, body)``: (posed batch, visibility)."""
         positions, positions_soa, body = frame
-        if self.local_graph is not None:  # the local network needs the frames first
-            state = self.frames(positions_soa)
-            return state, self._local_visibility(positions_soa, state, self._vis_overlap)
         vis = self._visibility(positions, positions_soa, body, self._vis_overlap)
         return self.frames(positions_soa), vis
 
@@ -323,6 +321,9 @@ class DeformablePlayer(Player):
         behind the shading and rendering, as in overlap; ``"shading"``); other modes: :meth:`compute` per frame."""
         if self.mode != "pipeline":
             yield from super().compute_stream(frames, n, timer)
+            return
+        if self.local_graph is not None:
+            yield from self._stream_whole_frames(frames, n, timer)
             return
         pool = self._worker()
         fut = pool.submit(self._stage, frames[0:1]) if n > 0 else None
@@ -338,17 +339,47 @@ class DeformablePlayer(Player):
                 timer.add("shading", time.perf_counter() - t1)
             yield state, out
 
+    def _whole_frame(self, frame: Any) -> tuple[PoseBatch, np.ndarray]:
+        """A local run's pipeline task on a worker: the whole path of one frame (frames, offsets, ``local.onnx``,
+        shading) -> (state, radiance)."""
+        _, positions_soa, _ = frame
+        state = self.frames(positions_soa)
+        return state, self.shade(state, visibility=self._local_visibility(positions_soa, state), checked=False)
+
+    def _stream_whole_frames(self, frames: Any, n: int, timer: FrameTimer | None) -> Iterator[tuple[PoseBatch,
+                                                                                                    np.ndarray]]:
+        """Pipeline playback of a local run: two whole frames in flight, one per worker (the two cores), yielded in
+        order. Its stages do not split evenly (the frames feed the offsets, which feed the network), so each worker
+        runs a whole frame rather than one stage: two frames of latency. Timer step ``"visibility"``: the main
+        thread's wait, the part of the workers' compute not hidden behind its own work (rendering)."""
+        from collections import deque
+
+        pool = self._worker()
+        inflight = deque(pool.submit(self._whole_frame, frames[i:i + 1]) for i in range(min(self.IN_FLIGHT, n)))
+        for i in range(n):
+            t0 = time.perf_counter()
+            state, out = inflight.popleft().result()
+            if i + self.IN_FLIGHT < n:
+                j = i + self.IN_FLIGHT
+                inflight.append(pool.submit(self._whole_frame, frames[j:j + 1]))
+            if timer is not None:  # the main thread's wait: the part of the workers' compute not hidden
+                timer.add("visibility", time.perf_counter() - t0)
+            yield state, out
+
+    #: frames in flight in a local run's pipeline (one per worker thread: the machine's two cores)
+    IN_FLIGHT = 2
+
     def _worker(self) -> Any:
         """The worker thread of the overlap and pipeline modes and its one-thread session of the visibility graph
         (``positions.onnx`` or ``visibility.onnx`` by ``features``), created on first use."""
         if self._pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
+            if self.local_graph is not None:  # pipeline: whole frames on two workers, sharing the sessions
+                self._pool = ThreadPoolExecutor(max_workers=self.IN_FLIGHT, thread_name_prefix="prt-frame")
+                return self._pool
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prt-visibility")
-            if self.local_graph is not None:
-                path = self.local_graph.path
-            else:
-                path = self.positions_graph.path if self.features == "graph" else self.bundle.graphs["visibility"].path
+            path = self.positions_graph.path if self.features == "graph" else self.bundle.graphs["visibility"].path
             self._vis_overlap = OrtGraph(path, threads=1, spinning=self._spinning, device=self.device)
         return self._pool
 

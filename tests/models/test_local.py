@@ -74,8 +74,9 @@ def test_offsets_match_a_per_vertex_loop_and_the_numpy_twin(waving_sheet: dict[s
                 loc = fr[b, i].astype(np.float64) @ (pos[b, nb[i, s]] - pos[b, i]).astype(np.float64)
                 ref[b, i, [s, S + s, 2 * S + s]] = loc  # component-major
     np.testing.assert_allclose(x, ref, atol=1e-6)
-    twin = LocalOffsetsSoA(nb)(*offsets_inputs(pos, fr))
-    np.testing.assert_allclose(twin, x.transpose(0, 2, 1), atol=1e-6)
+    for engine in LocalOffsetsSoA.ENGINES:  # the compiled pass and the numpy rule
+        twin = LocalOffsetsSoA(nb, engine=engine)(*offsets_inputs(pos, fr))
+        np.testing.assert_allclose(twin, x.transpose(0, 2, 1), atol=1e-6, err_msg=engine)
     fi = torch.tensor([0, 2, 1, 2])
     vi = torch.tensor([5, 0, 100, 179])
     np.testing.assert_allclose(sample_offsets(torch.from_numpy(pos), torch.from_numpy(fr), torch.from_numpy(nb), fi,
@@ -171,6 +172,8 @@ def test_save_load_round_trip_and_bad_files(tmp_path: Path, waving_sheet: dict[s
                         np.zeros((V, 4)))
     with pytest.raises(PrtError, match="neighbour indices must be integers"):
         LocalOffsetsSoA(np.array([[0, 5]]))
+    with pytest.raises(PrtError, match="unknown local offsets engine"):
+        LocalOffsetsSoA(nb, engine="cuda")
 
 
 def test_head_runs_the_same_in_onnxruntime(tmp_path: Path, waving_sheet: dict[str, np.ndarray]) -> None:
