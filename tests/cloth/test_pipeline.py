@@ -292,7 +292,7 @@ def test_cape_simulate_bake_train_compare(cape_run: Path) -> None:
     assert res["clips"] == subject.sequences("heldout") and res["frames"] == 3
     truth_err = res["methods"]["sh_truth"]["vis_rel_err"]
     assert truth_err == 0.0
-    # the local models (train.local): onnxruntime on the numpy offsets gives the torch model's visibility
+    # the local models (train.local): onnxruntime on the offsets (numba) gives the torch model's visibility
     metrics = json.loads(run.metrics_json.read_text())
     assert set(metrics["local"]) == {"linear", "mlp"}
     for m in learned:  # real predictions: better than nothing, not the truth itself

@@ -10,7 +10,7 @@ path, :mod:`prt_torch.eval.shipping`) or radiance directly. Built in:
 ``learned_linear``,    the run's trained models through onnxruntime (:class:`prt_torch.runtime.session.OrtGraph`):
 ``learned_quadratic``, the shipped ``visibility.onnx`` for the exported kind, the others' ``VisibilityGraph``
 ``learned_mlp``        exported into the run's compare directory
-``learned_local_*``    the run's local models (``train.local``): numpy neighbour offsets + the network in
+``learned_local_*``    the run's local models (``train.local``): neighbour offsets (numba) + the network in
                        onnxruntime (:mod:`prt_torch.compare.methods.local`)
 ``pca_floor``          (opt-in) an oracle: the baked visibility through the model's output PCA - the error every
                        regressor with that basis has at least

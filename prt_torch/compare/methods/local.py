@@ -1,7 +1,7 @@
 """``learned_local_linear``, ``learned_local_mlp``: the run's local visibility models (``train.local``,
 :mod:`prt_torch.models.local`) on the player's path.
 
-Per frame (timed): the numpy neighbour offsets (:class:`prt_torch.deform.local_soa.LocalOffsetsSoA`) from the
+Per frame (timed): the neighbour offsets (numba) (:class:`prt_torch.deform.local_soa.LocalOffsetsSoA`) from the
 positions and the compared frames, then the network in onnxruntime: the shipped ``local.onnx`` when it is this
 kind's current model (``export.json`` ``local``), else the kind's :class:`~prt_torch.models.local.LocalHead` exported
 into the run's compare directory. The frames are the compared frames every method gets (the player computes them
@@ -53,7 +53,7 @@ class LearnedLocal(MethodBase):
         self.precision = str(self.graph.metadata.get("prt.precision", "fp32"))
         self._bytes = int(initializer_bytes(path) + nb.astype(neighbour_dtype(nb.shape[0])).nbytes)
         self.n_samples = int(nb.shape[1])
-        self.runtime = f"numpy offsets + onnxruntime ({run.run.relative(path)}, {self.source})"
+        self.runtime = f"numba offsets + onnxruntime ({run.run.relative(path)}, {self.source})"
 
     def _export(self, run: CompareRun, mpath: Path) -> tuple[Path, np.ndarray]:
         from prt_torch.export.local_graph import export_head
