@@ -1,4 +1,4 @@
-"""numpy twin of :func:`prt_torch.models.local.local_offsets` for the player (numpy + numba, vertex-last).
+"""Run-time twin of :func:`prt_torch.models.local.local_offsets` for the player (numba, or numpy; vertex-last).
 
 onnxruntime's Gather of ``V x S`` neighbour coordinates costs ~1.5 ms per coordinate at 7.7k vertices and 24
 samples (any axis, measured), and the same rule in numpy (``take`` of the coordinate rows, then 9 multiply-adds
@@ -52,7 +52,8 @@ class LocalOffsetsSoA:
         self.engine = engine
         self.n_vertices, self.n_samples = int(nb.shape[0]), int(nb.shape[1])
         self._idx2 = np.ascontiguousarray(nb.T, dtype=np.int32)  # (S, V) sample-major
-        self._idx = self._idx2.ravel().astype(np.intp)  # (S * V,) for numpy's take
+        # (S * V,) for numpy's take; the compiled pass reads _idx2
+        self._idx: np.ndarray | None = self._idx2.ravel().astype(np.intp) if engine == "numpy" else None
 
     @property
     def neighbours(self) -> np.ndarray:

@@ -5,13 +5,13 @@
 * ``local.npz`` (:attr:`RunDir.local_data_path`): ``neighbours (V, S)``, the model's neighbour indices (int16 up to
   32,767 vertices, else int32);
 * ``local.onnx`` (:attr:`RunDir.local_graph_path`): the network only, ``offsets (B, 3 S, V) -> visibility
-  (B, V, C)`` (:class:`prt_torch.models.local.LocalHead`). The player computes ``offsets`` with the numpy twin
+  (B, V, C)`` (:class:`prt_torch.models.local.LocalHead`). The player computes ``offsets`` with the run-time twin
   :class:`prt_torch.deform.local_soa.LocalOffsetsSoA` from the positions and the frames it computes anyway
-  (onnxruntime's Gather of the neighbour coordinates is ~10x slower than numpy's ``take``); its per-vertex tables
+  (numba; onnxruntime's Gather of the neighbour coordinates is ~10x slower); its per-vertex tables
   (the first-layer term and the intercepts, most of its bytes) are stored in float16 when the fit put them on the
   float16 grid (:func:`table_lowering`), exactly.
 
-Checked at export: the numpy twin against the torch rule :func:`prt_torch.models.local.local_offsets` on held-out
+Checked at export: the run-time twin against the torch rule :func:`prt_torch.models.local.local_offsets` on held-out
 frames, and onnxruntime against torch (parity).
 """
 
@@ -26,7 +26,7 @@ from prt_torch.rundir import RunDir
 
 #: version of the shipped local graph (part of the export key when one ships)
 LOCAL_GRAPH_VERSION = 1
-#: worst |numpy twin - torch rule| accepted, relative to the largest offset
+#: worst |run-time twin - torch rule| accepted, relative to the largest offset
 TWIN_RTOL = 1e-5
 
 
@@ -76,7 +76,7 @@ def export_head(head: Any, offsets: np.ndarray, path: Any, metadata: dict[str, A
 
 def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: dict[str, Any], rtol: float,
                opset: int = 17, exporter: str = "torchscript") -> dict[str, Any]:
-    """Write ``local.npz`` and ``local.onnx`` for the run's local ``kind``; check the numpy twin and the parity on
+    """Write ``local.npz`` and ``local.onnx`` for the run's local ``kind``; check the run-time twin and the parity on
     ``held`` (``positions (F, V, 3)``, ``frames (F, V, 3, 3)``). Returns the ``export.json`` ``local`` entry."""
     import torch
 
@@ -99,7 +99,7 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
                                                                                                       np.float32)),
                             model.neighbours).transpose(1, 2).numpy()
     twin_err = float(np.abs(x - ref).max() / max(float(np.abs(ref).max()), 1e-30))
-    check(twin_err <= TWIN_RTOL, f"{run.path}: the numpy local offsets differ from the torch rule by {twin_err:.3g} "
+    check(twin_err <= TWIN_RTOL, f"{run.path}: the run-time local offsets differ from the torch rule by {twin_err:.3g} "
                                  f"(> {TWIN_RTOL})")
     nb_bytes = write_neighbours(run, nb)
     path = run.local_graph_path

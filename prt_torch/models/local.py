@@ -91,7 +91,7 @@ def sample_offsets(positions: torch.Tensor, frames: torch.Tensor, neighbours: to
 
 
 class LocalHead(nn.Module):
-    """The network of a local model, vertex-last (the run-time graph; its input comes from the numpy twin
+    """The network of a local model, vertex-last (the run-time graph; its input comes from the run-time twin
     :class:`prt_torch.deform.local_soa.LocalOffsetsSoA` in the player): ``offsets (B, 3 S, V)`` -> ``(B, V, C)``.
 
     Args:

@@ -339,29 +339,23 @@ class DeformablePlayer(Player):
                 timer.add("shading", time.perf_counter() - t1)
             yield state, out
 
-    def _whole_frame(self, frame: Any) -> tuple[PoseBatch, np.ndarray]:
-        """A local run's pipeline task on a worker: the whole path of one frame (frames, offsets, ``local.onnx``,
-        shading) -> (state, radiance)."""
-        _, positions_soa, _ = frame
-        state = self.frames(positions_soa)
-        return state, self.shade(state, visibility=self._local_visibility(positions_soa, state), checked=False)
-
     def _stream_whole_frames(self, frames: Any, n: int, timer: FrameTimer | None) -> Iterator[tuple[PoseBatch,
                                                                                                     np.ndarray]]:
         """Pipeline playback of a local run: two whole frames in flight, one per worker (the two cores), yielded in
         order. Its stages do not split evenly (the frames feed the offsets, which feed the network), so each worker
-        runs a whole frame rather than one stage: two frames of latency. Timer step ``"visibility"``: the main
-        thread's wait, the part of the workers' compute not hidden behind its own work (rendering)."""
+        runs a whole frame (:meth:`compute`'s split path) rather than one stage: two frames of latency. Timer step
+        ``"visibility"``: the main thread's wait, the part of the workers' compute not hidden behind its own work
+        (rendering)."""
         from collections import deque
 
         pool = self._worker()
-        inflight = deque(pool.submit(self._whole_frame, frames[i:i + 1]) for i in range(min(self.IN_FLIGHT, n)))
+        inflight = deque(pool.submit(self.compute, frames[i:i + 1]) for i in range(min(self.IN_FLIGHT, n)))
         for i in range(n):
             t0 = time.perf_counter()
             state, out = inflight.popleft().result()
             if i + self.IN_FLIGHT < n:
                 j = i + self.IN_FLIGHT
-                inflight.append(pool.submit(self._whole_frame, frames[j:j + 1]))
+                inflight.append(pool.submit(self.compute, frames[j:j + 1]))
             if timer is not None:  # the main thread's wait: the part of the workers' compute not hidden
                 timer.add("visibility", time.perf_counter() - t0)
             yield state, out
