@@ -14,7 +14,10 @@ created in a temporary directory and renamed into place without replacing anythi
 store is verified (missing chunks of done blocks, crc32c/decode failures) and the damaged blocks'
 ``done`` entries are cleared, so they are baked again (damaged creation-time arrays are rewritten
 from the plan). Local pool workers die with their parent (``PR_SET_PDEATHSIG`` on Linux, and a
-watchdog thread polling the parent pid everywhere), so a killed bake leaves no process writing.
+watchdog thread polling the parent pid everywhere), so a killed bake leaves no process writing. A Dask
+worker that dies mid-bake (killed, out of memory) loses only its tasks: the scheduler runs them, and any finished
+result it held, again on the other workers (or the one its nanny restarts), and the bake ends with no ``*.partial``
+chunk write of the dead worker left in the store (tests/bake/test_dask_faults.py).
 """
 
 from __future__ import annotations
@@ -388,7 +391,7 @@ def _run_local(tasks: list[BlockTask], workers: int) -> Iterator[BlockStats]:
 
 def _run_dask(tasks: list[BlockTask], scheduler: str) -> Iterator[BlockStats]:
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client, KilledWorker, as_completed
     except ImportError:
         raise PrtError("the Dask backend needs dask[distributed]") from None
     try:
@@ -397,9 +400,16 @@ def _run_dask(tasks: list[BlockTask], scheduler: str) -> Iterator[BlockStats]:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise PrtError(f"cannot connect to the Dask scheduler at {scheduler!r} ({msg})") from None
     try:
-        futures = [client.submit(bake_block, t, pure=False) for t in tasks]
-        for fut in as_completed(futures):
-            yield fut.result()
+        futures = {client.submit(bake_block, t, pure=False): t for t in tasks}
+        for fut in as_completed(list(futures)):
+            try:
+                st = fut.result()
+            except KilledWorker as exc:  # workers died running this block more often than the scheduler allows
+                t = futures[fut]
+                raise PrtError(f"Dask workers died {exc.allowed_failures + 1} time(s) baking frames {t.f0}..{t.f1 - 1} "
+                               f"(distributed.scheduler.allowed-failures = {exc.allowed_failures}); the blocks done "
+                               f"are kept: run prt bake again to resume") from None
+            yield st
     finally:
         client.close()
 
@@ -461,7 +471,8 @@ def _run_bake(cfg: RunConfig, plan: BakePlan, workers: int | None, scheduler: st
             if on_block is not None:
                 on_block(st)
     ds = BakedDataset(path)
-    if ds.complete:
+    if ds.complete:  # every task came back: a ``*.partial`` left now is a write of a worker killed mid-chunk
+        remove_partial_files(path)
         RunDir(path).mark_done("bake", ds.key())
     return BakeResult(path=path, frames=frames, skipped=total - todo, rays=rays, seconds=time.perf_counter() - t0,
                       repaired=repaired, repaired_arrays=repaired_arrays)

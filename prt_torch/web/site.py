@@ -6,7 +6,8 @@ Site layout (every file written atomically)::
     DIR/vendor/three/three.module.js, three.core.js           three.js (web/node_modules, pinned)
     DIR/vendor/ort/ort.wasm.min.mjs, ort-wasm-simd-threaded.{mjs,wasm}   onnxruntime-web, wasm backend
     DIR/assets/manifest.json                     sizes, names, conventions, lighting presets, camera, material,
-                                                 and the offset / dtype / shape of every array in data.bin
+                                                 the offset / dtype / shape of every array in data.bin, and the
+                                                 size and sha256 of data.bin and of the model (the page checks both)
     DIR/assets/data.bin                          little-endian arrays (8-byte aligned), see SITE_ARRAYS
     DIR/assets/pose_to_visibility.onnx           the run's visibility graph, byte for byte
     DIR/assets/basecolor.png                     the material's base-colour texture (when it has one)
@@ -208,8 +209,8 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
     tonemaps = player_tonemaps(bundle.run_dir, lights, names[0], ch, clips[0]["name"])
     data = blob.bytes()
     atomic_write_bytes(out / ASSETS / DATA, data)
-    model_path = bundle.run.graph_path("visibility")
-    atomic_write_bytes(out / ASSETS / MODEL, model_path.read_bytes())
+    model_bytes = bundle.run.graph_path("visibility").read_bytes()
+    atomic_write_bytes(out / ASSETS / MODEL, model_bytes)
     center, radius = camera_target(ch.rest_vertices)
     manifest: dict[str, Any] = {
         "format": SITE_FORMAT,
@@ -227,8 +228,8 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         "below_horizon": bundle.below_horizon,
         "gaunt": gaunt_table(order),
         "unshadowed": hemisphere_visibility(order, bundle.below_horizon).astype(float).tolist(),
-        "model": {"file": MODEL, "input": "pose", "output": "visibility",
-                  "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest()},
+        "model": {"file": MODEL, "input": "pose", "output": "visibility", "bytes": len(model_bytes),
+                  "sha256": hashlib.sha256(model_bytes).hexdigest()},
         "data": {"file": DATA, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest(),
                  "arrays": blob.entries},
         "clips": clips,

@@ -1,40 +1,77 @@
-"""A missing or malformed run asset shows a readable error on the page, never a blank canvas."""
+"""A missing, truncated, damaged or wrong-version site file shows ONE readable error on the page (the visible
+``#error`` box, naming the file and what is wrong with it), never a blank canvas or only a console message."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from prt_torch.web.site import ASSETS, DATA, MANIFEST, MODEL
+from prt_torch.web.site import ASSETS, DATA, MANIFEST, MODEL, SITE_FORMAT
 
 
 def _site_copy(site: Path, dst: Path) -> Path:
-    """Symlinks to every file of ``site`` except the assets folder's (copied: the case damages one of them)."""
-    dst.mkdir()
-    for p in site.iterdir():
-        if p.name == ASSETS:
-            (dst / ASSETS).mkdir()
-            for a in p.iterdir():
-                (dst / ASSETS / a.name).write_bytes(a.read_bytes())
-        else:
-            os.symlink(p.resolve(), dst / p.name)
+    """A copy of ``site`` made of hard links (the server refuses symlinks out of the site), the assets folder's files
+    copied (a case damages one of them in place)."""
+    shutil.copytree(site, dst, copy_function=_link_or_copy, ignore=shutil.ignore_patterns("check", ASSETS))
+    shutil.copytree(site / ASSETS, dst / ASSETS)
     return dst
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:  # another file system
+        shutil.copy2(src, dst)
 
 
 def _truncate(p: Path) -> None:
     p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
 
 
+def _set_format(site: Path, fmt: str) -> None:
+    p = site / ASSETS / MANIFEST
+    p.write_text(json.dumps({**json.loads(p.read_text()), "format": fmt}))
+
+
+def _flip_byte(p: Path) -> None:
+    raw = bytearray(p.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    p.write_bytes(bytes(raw))
+
+
+def _stale_model(site: Path, raw: bytes) -> None:
+    """A model that is not an ONNX graph, with a manifest that agrees with it (size and sha256)."""
+    (site / ASSETS / MODEL).write_bytes(raw)
+    p = site / ASSETS / MANIFEST
+    m = json.loads(p.read_text())
+    m["model"].update(bytes=len(raw), sha256=hashlib.sha256(raw).hexdigest())
+    p.write_text(json.dumps(m))
+
+
+WASM = "vendor/ort/ort-wasm-simd-threaded.wasm"
+
+#: damage of the site folder -> words the one error shown must contain
 CASES = {
-    "manifest_missing": (lambda a: (a / MANIFEST).unlink(), ["manifest", "missing", "404"]),
-    "manifest_malformed": (lambda a: (a / MANIFEST).write_text('{"format": "prt_torch.web/1", '), ["malformed"]),
-    "data_truncated": (lambda a: _truncate(a / DATA), [DATA, "bytes"]),
-    "model_missing": (lambda a: (a / MODEL).unlink(), ["visibility model", "missing"]),
-    "model_garbage": (lambda a: (a / MODEL).write_bytes(b"not an onnx graph" * 10),
-                      ["visibility model", "onnxruntime"]),
+    "manifest_missing": (lambda s: (s / ASSETS / MANIFEST).unlink(), ["manifest", "missing", "404"]),
+    "manifest_malformed": (lambda s: (s / ASSETS / MANIFEST).write_text('{"format": "prt_torch.web/1", '),
+                           ["malformed"]),
+    "wrong_version": (lambda s: _set_format(s, "prt_torch.web/2"),
+                      ["manifest", '"prt_torch.web/2"', f'"{SITE_FORMAT}"', "re-run `prt web`"]),
+    "data_truncated": (lambda s: _truncate(s / ASSETS / DATA), [DATA, "bytes"]),
+    "data_missing": (lambda s: (s / ASSETS / DATA).unlink(), ["character data", DATA, "missing", "404"]),
+    "model_missing": (lambda s: (s / ASSETS / MODEL).unlink(), ["visibility model", "missing"]),
+    "model_truncated": (lambda s: _truncate(s / ASSETS / MODEL), ["visibility model", MODEL, "truncated"]),
+    "model_corrupt": (lambda s: _flip_byte(s / ASSETS / MODEL), ["visibility model", MODEL, "sha256"]),
+    "model_garbage": (lambda s: _stale_model(s, b"not an onnx graph" * 10), ["visibility model", "onnxruntime"]),
+    "wasm_missing": (lambda s: (s / WASM).unlink(), ["onnxruntime-web", WASM, "missing", "404"]),
+    "script_missing": (lambda s: (s / "vendor/three/three.module.js").unlink(),
+                       ["vendor/three/three.module.js", "missing", "404"]),
 }
 
 
@@ -45,16 +82,21 @@ def test_broken_asset_shows_a_readable_error(case: str, checked_site: tuple[Path
 
     damage, words = CASES[case]
     site = _site_copy(checked_site[0], tmp_path / "site")
-    damage(site / ASSETS)
+    damage(site)
     with SiteServer(site) as srv:
         ps = browser.open(srv.url)
         try:
             assert ps.wait_ready(timeout_ms=30000) is False, "the page started on a broken asset"
+            alerts = ps.page.locator("[role=alert]:visible")
+            n = alerts.count()
+            assert n == 1, "no error shown: a blank canvas" if n == 0 else alerts.all_inner_texts()
             el = ps.page.locator("#error")
-            assert el.is_visible(), "no error shown: a blank canvas"
+            assert el.is_visible()
             text = el.inner_text()
-            assert text.startswith("The player could not start")
+            assert text.startswith("The player could not start:") and text.count("could not start") == 1, text
             assert all(w.lower() in text.lower() for w in words), text
-            assert len(text) < 2000
+            assert len(text) < 600 and text.count("\n") <= 4, text  # one message, not a stack trace
+            assert ps.page.evaluate("window.prt.error") in text
+            assert ps.page.locator("#stats").inner_text() == "error"
         finally:
             ps.page.close()

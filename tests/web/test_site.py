@@ -27,6 +27,9 @@ def test_site_arrays_round_trip_and_motion_clip(tiny_run: Path, shared_data: Pat
     m = read_manifest(site)
     data = (site / "assets" / m["data"]["file"]).read_bytes()
     assert hashlib.sha256(data).hexdigest() == m["data"]["sha256"] and len(data) == m["data"]["bytes"]
+    model = (site / "assets" / m["model"]["file"]).read_bytes()  # the page checks both against the manifest
+    assert model == RunDir(tiny_run).graph_path("visibility").read_bytes()
+    assert hashlib.sha256(model).hexdigest() == m["model"]["sha256"] and len(model) == m["model"]["bytes"]
     ch = RunDir(tiny_run).character()
     np.testing.assert_array_equal(_array(site, m, "rest_vertices"), ch.rest_vertices)
     np.testing.assert_array_equal(_array(site, m, "faces"), ch.faces)

@@ -34,6 +34,32 @@ function need(cond, message) {
   if (!cond) throw new AssetError(message);
 }
 
+// the bytes of a fetched asset against its manifest entry ({bytes, sha256}; either may be absent in older sites)
+async function checkBytes(buf, entry, file, what) {
+  if (Number.isInteger(entry.bytes)) {
+    need(buf.byteLength === entry.bytes, `${what} (${ASSETS}${file}) has ${buf.byteLength} bytes, the manifest says ${entry.bytes} (truncated or stale: re-run \`prt web\`)`);
+  }
+  if (typeof entry.sha256 === 'string' && self.crypto && crypto.subtle) { // secure contexts only (127.0.0.1 is one)
+    const hex = Array.from(new Uint8Array(await crypto.subtle.digest('SHA-256', buf)), (b) => b.toString(16).padStart(2, '0')).join('');
+    need(hex === entry.sha256, `${what} (${ASSETS}${file}) does not match the manifest's sha256 (damaged or stale: re-run \`prt web\`)`);
+  }
+}
+
+// onnxruntime-web's own runtime files (fetched by it, not by this page): the first one the server does not have
+const ORT_RUNTIME = ['vendor/ort/ort-wasm-simd-threaded.mjs', 'vendor/ort/ort-wasm-simd-threaded.wasm'];
+async function missingRuntime() {
+  for (const f of ORT_RUNTIME) {
+    let res;
+    try {
+      res = await fetch(f, { method: 'HEAD' });
+    } catch (e) {
+      return `onnxruntime-web's wasm runtime (${f}) could not be fetched: ${e.message}`;
+    }
+    if (!res.ok) return `onnxruntime-web's wasm runtime (${f}) is missing: HTTP ${res.status} ${res.statusText} (re-run \`prt web\`)`;
+  }
+  return null;
+}
+
 async function loadManifest() {
   const res = await fetchOk('manifest.json', 'the run manifest');
   const text = await res.text();
@@ -56,7 +82,8 @@ async function loadManifest() {
 async function loadArrays(m) {
   const res = await fetchOk(m.data.file, 'the character data');
   const buf = await res.arrayBuffer();
-  need(buf.byteLength === m.data.bytes, `${ASSETS}${m.data.file} has ${buf.byteLength} bytes, the manifest says ${m.data.bytes} (truncated or stale: re-run \`prt web\`)`);
+  need(Number.isInteger(m.data.bytes), 'the run manifest gives no size of the character data (re-run `prt web`)');
+  await checkBytes(buf, m.data, m.data.file, 'the character data');
   const out = {};
   for (const [name, e] of Object.entries(m.data.arrays)) {
     const T = DTYPES[e.dtype];
@@ -371,11 +398,13 @@ async function start() {
   ort.env.wasm.numThreads = self.crossOriginIsolated ? Math.min(4, navigator.hardwareConcurrency || 1) : 1;
   window.prt.wasmThreads = ort.env.wasm.numThreads; // threads need cross-origin isolation (prt web --serve sends it)
   let session;
+  const model = await (await fetchOk(m.model.file, 'the visibility model')).arrayBuffer();
+  await checkBytes(model, m.model, m.model.file, 'the visibility model');
   try {
-    const model = await (await fetchOk(m.model.file, 'the visibility model')).arrayBuffer();
     session = await ort.InferenceSession.create(new Uint8Array(model), { executionProviders: ['wasm'] });
   } catch (e) {
-    throw e instanceof AssetError ? e : new AssetError(`the visibility model (${ASSETS}${m.model.file}) could not be loaded by onnxruntime-web: ${e.message || e}`);
+    const runtime = await missingRuntime(); // ort's own message for a missing runtime file names no file
+    throw new AssetError(runtime || `the visibility model (${ASSETS}${m.model.file}) could not be loaded by onnxruntime-web: ${e.message || e}`);
   }
   const texture = m.material && m.material.texture ? await loadTexture(m.material.texture) : null;
   const app = new App(m, arrays, session, glsl, texture);
