@@ -7,7 +7,7 @@ operators under zonal-harmonic lighting) -> export (ONNX) -> play (onnxruntime +
 Conventions shared by every module are in ``docs/DESIGN.md``.
 """
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import PrtError, PrtWarning
 
-__all__ = ["PrtError", "__version__"]
+__all__ = ["PrtError", "PrtWarning", "__version__"]
 __version__ = "0.1.0"

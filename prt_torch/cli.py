@@ -8,7 +8,8 @@ Each sub-command lives in ``prt_torch/commands/<name>.py`` and defines
 
 Command modules keep heavy imports (torch, embreex, pyvista) inside ``run`` so that ``prt --help``
 stays fast and ``prt play`` never imports torch. Errors of type :class:`prt_torch.PrtError` (and
-missing files) are printed as one line, ``error: ...``, with exit status 2 and no traceback.
+missing files) are printed as one line, ``error: ...``, with exit status 2 and no traceback; warnings raised
+while a command runs (:func:`prt_torch.errors.warn`) are printed as one line each, ``warning: ...``.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 from collections.abc import Sequence
-from typing import NoReturn
+from typing import Any, NoReturn, TextIO
 
 #: sub-command name -> module path
 COMMANDS: dict[str, str] = {
@@ -72,10 +74,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from prt_torch.errors import PrtError
-
+    """Parse ``argv`` and run the command: its exit status (argument errors exit 2 from the parser)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the chosen command; its errors as one ``error: ...`` line each (exit status 2)."""
+    from prt_torch.errors import PrtError
+
     try:
         return int(args._run(args) or 0)
     except PrtError as exc:
@@ -95,6 +105,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: TextIO | None = None, line: str | None = None, **_: Any) -> None:
+    """``warnings.showwarning`` of the CLI: ``warning: <message>`` on one line to stderr (no source line)."""
+    print(f"warning: {_one_line(message)}", file=sys.stderr if file is None else file)
 
 
 def _one_line(x: object) -> str:

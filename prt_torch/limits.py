@@ -67,6 +67,13 @@ BUILTIN_VERTICES_PER_DENSITY = 12_500
 MAX_VERTICES = 2_000_000
 #: character height a glTF file is rescaled to (``character.height``)
 MAX_HEIGHT = 1.0e4
+#: the largest glTF rest vertex coordinate (file units, z-up world): float32 positions (~7 significant digits)
+#: this far from the origin are steps of 1 unit, too coarse for any character's shape
+MAX_COORDINATE = 1.0e7
+#: the farthest a glTF rest vertex may lie from the mesh's per-axis median, in multiples of the median vertex
+#: distance from it (the robust extent; ~2 for the shared characters): one stray vertex would otherwise become
+#: the character's size (``character.height`` would shrink the rest to a point) and its bounds
+MAX_VERTEX_SPREAD = 100.0
 #: hemisphere rays per vertex (bake ``n_rays``, compare ``--reference-rays``, bench ``--rays``)
 MAX_RAYS = 65_536
 #: rays per Embree call (``bake.vertex_chunk_rays``; ~100 bytes of buffers per ray)

@@ -26,10 +26,12 @@ def _run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]
 def test_json_band_limited_map(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rng = np.random.default_rng(0)
     sh = rng.normal(size=(9, 3))
-    sh[0] += 5
-    write_pfm(tmp_path / "m.pfm", (sh_basis(latlong_directions(64, 128), 3) @ sh).astype(np.float32))
+    sh[0] += 8  # a map of radiance > 0 everywhere (negative pixels would be clamped)
+    img = (sh_basis(latlong_directions(64, 128), 3) @ sh).astype(np.float32)
+    assert img.min() > 0
+    write_pfm(tmp_path / "m.pfm", img)
     code, out, err = _run(capsys, "light", str(tmp_path / "m.pfm"), "--order", "3", "--lobes", "2", "--json")
-    assert code == 0, err
+    assert code == 0 and err == "", err
     obj = json.loads(out)
     assert obj["order"] == 3 and obj["layout"] == "latlong" and (obj["width"], obj["height"]) == (128, 64)
     coeffs = np.array(obj["coefficients"])
@@ -74,6 +76,27 @@ def test_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str])
         assert "Traceback" not in err and out == ""
     code, out, _ = _run(capsys, "light", str(tmp_path / "ok.pfm"), "--order", "1", "--json")
     assert json.loads(out)["coefficients"][0][0] == pytest.approx(math.sqrt(4 * math.pi))
+
+
+def test_negative_radiance_is_clamped_with_one_warning_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A constant map of radiance 1 with 5 negative pixels: one ``warning:`` line, and the SH of the clamped map
+    (DC = sqrt(4 pi) times the mean radiance over the sphere, the clamped pixels counting as 0)."""
+    from prt_torch.light.envmap import latlong_solid_angles
+
+    img = np.ones((8, 16, 3), np.float32)
+    bad = [(0, 0), (3, 5), (4, 5), (7, 15), (2, 9)]
+    for r, c in bad:
+        img[r, c] = -3.0
+    write_pfm(tmp_path / "neg.pfm", img)
+    code, out, err = _run(capsys, "light", str(tmp_path / "neg.pfm"), "--order", "1", "--json")
+    assert code == 0, err
+    assert err == "warning: neg.pfm: clamped negative radiance to 0 in 5 of 128 pixel(s) (lowest value -3)\n"
+    omega = latlong_solid_angles(8, 16)
+    lit = np.ones((8, 16))
+    for r, c in bad:
+        lit[r, c] = 0.0
+    want = (omega * lit).sum() / math.sqrt(4 * math.pi)  # int L y_00 = int L / sqrt(4 pi)
+    assert json.loads(out)["coefficients"][0] == pytest.approx([want] * 3, rel=1e-6)
 
 
 # ------------------------------------------------------------------------------------------ --sg (seed 004)

@@ -255,3 +255,54 @@ def test_config_fps_error_through_the_cli(work: Path, capsys: pytest.CaptureFixt
 def test_run_dir_naming_a_file(work: Path, capsys: pytest.CaptureFixture[str]) -> None:
     msg = _assert_refused(["bake", "c.yaml", "--run-dir", "afile"], work, capsys)
     assert "--run-dir" in msg and "not a directory" in msg
+
+
+@pytest.mark.parametrize("where", ["option", "config"])
+def test_unreachable_scheduler_writes_nothing(work: Path, capsys: pytest.CaptureFixture[str],
+                                              monkeypatch: pytest.MonkeyPatch, where: str) -> None:
+    """``--scheduler`` (or ``bake.scheduler``) where no scheduler listens: the bake connects before it creates the
+    run directory or the store, so the one error line leaves nothing behind (connect timeout shortened to 2 s)."""
+    from prt_torch.bake import runner
+
+    monkeypatch.setattr(runner, "SCHEDULER_TIMEOUT_S", 2.0)
+    address = "tcp://127.0.0.1:1"  # a privileged port: nothing listens there
+    if where == "option":
+        argv = ["bake", "c.yaml", "--scheduler", address]
+    else:
+        cfg = (work / "c.yaml").read_text()
+        (work / "d.yaml").write_text(cfg.replace("bake:\n", f"bake:\n  scheduler: {address}\n"))
+        argv = ["bake", "d.yaml"]
+    msg = _assert_refused(argv, work, capsys)
+    assert msg.startswith(f"error: cannot connect to the Dask scheduler at '{address}' (") and \
+        msg.endswith("); nothing written"), msg
+    assert not (work / "out").exists()
+
+
+def test_stray_gltf_vertex_writes_nothing(work: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A glTF character with one vertex at 1e30 baked with exit 0 as an unoccluded speck (``height`` shrank every
+    other vertex to a point): now one line at load time, nothing written."""
+    from tests.rig.test_gltf import write_rig
+
+    write_rig(work / "stray.glb", stray=1e30)
+    (work / "s.yaml").write_text(f"name: s\nrun_dir: {work / 'out'}\ncharacter: {{source: stray.glb, height: 1.8, "
+                                 f"train_clips: [lin]}}\nbake: {{n_rays: 16, workers: 1}}\n")
+    msg = _assert_refused(["bake", "s.yaml"], work, capsys)
+    assert re.fullmatch(r"error: stray\.glb: vertex 4 at \(1e\+30, [^)]*\) has a coordinate beyond 1e\+07 "
+                        r"\(limits\.MAX_COORDINATE\)", msg), msg
+    assert not (work / "out").exists()
+
+
+def test_key_without_effect_is_one_warning_line(work: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``character.density`` on a glTF character: the bake runs (exit 0) and says once, on one line, that the key
+    is ignored."""
+    from tests.rig.test_gltf import write_rig
+
+    write_rig(work / "rig.glb")
+    (work / "g.yaml").write_text(f"name: g\nrun_dir: {work / 'out'}\ncharacter: {{source: rig.glb, density: 0.5, "
+                                 f"fps: 5, train_clips: [lin]}}\nbake: {{order: 2, n_rays: 16, workers: 1}}\n")
+    rc, out, err = _invoke(["bake", "g.yaml", "--no-progress"], capsys)
+    assert rc == 0, err
+    warned = [ln for ln in err.splitlines() if ln.startswith("warning: ")]
+    assert warned == ["warning: character.density has no effect on a glTF character (it sets the built-in "
+                      "humanoid's vertex density); ignored"], err
+    assert (work / "out" / "dataset.zarr").is_dir()

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import PrtError, warn
 from prt_torch.rig.clip import Clip
 from prt_torch.rig.config import ClipRange, as_clip_range
 
@@ -83,20 +83,26 @@ class BakePlan:
 
 def load_character(cfg: RunConfig) -> Character:
     """The character of a run: the built-in humanoid or a glTF file (``character.source``); for a cloth run the
-    cape's body (its subject, body + cloth, is :attr:`prt_torch.cloth.subject.ClothSubject.character`)."""
+    cape's body (its subject, body + cloth, is :attr:`prt_torch.cloth.subject.ClothSubject.character`). A key set
+    that has no effect on this character (:meth:`~prt_torch.rig.config.CharacterConfig.ineffective_keys`) is one
+    warning line."""
     ch = cfg.character
     if ch.source == "builtin":
         from prt_torch.rig.builtin import make_character
 
-        return add_motions(cfg, make_character(ch.density, fps=ch.fps))
-    path = cfg.resolve(ch.source)
-    if path.suffix.lower() not in (".glb", ".gltf"):
-        raise PrtError(f"unknown character source {ch.source!r}: expected 'builtin' or a .glb/.gltf file")
-    if not path.is_file():
-        raise PrtError(f"character file not found: {path}")
-    from prt_torch.rig.gltf import load_gltf
+        character = make_character(ch.density, fps=ch.fps)
+    else:
+        path = cfg.resolve(ch.source)
+        if path.suffix.lower() not in (".glb", ".gltf"):
+            raise PrtError(f"unknown character source {ch.source!r}: expected 'builtin' or a .glb/.gltf file")
+        if not path.is_file():
+            raise PrtError(f"character file not found: {path}")
+        from prt_torch.rig.gltf import load_gltf
 
-    return add_motions(cfg, load_gltf(path, fps=ch.fps, height=ch.height))
+        character = load_gltf(path, fps=ch.fps, height=ch.height)
+    for message in ch.ineffective_keys(ch.source == "builtin", character.joint_limits is not None):
+        warn(message)
+    return add_motions(cfg, character)
 
 
 def add_motions(cfg: RunConfig, character: Character) -> Character:

@@ -389,29 +389,38 @@ def _run_local(tasks: list[BlockTask], workers: int) -> Iterator[BlockStats]:
             raise
 
 
-def _run_dask(tasks: list[BlockTask], scheduler: str) -> Iterator[BlockStats]:
+#: seconds a bake waits for the Dask scheduler to answer before it gives up (nothing created yet)
+SCHEDULER_TIMEOUT_S = 20.0
+
+
+def connect_scheduler(scheduler: str) -> Any:
+    """A ``dask.distributed.Client`` connected to the scheduler at ``scheduler``; a one-line :class:`PrtError`
+    when there is none there (refused, unreachable: within :data:`SCHEDULER_TIMEOUT_S`). :func:`run_bake` connects
+    before it creates the run directory or the store, so an unreachable scheduler leaves nothing behind."""
     try:
-        from dask.distributed import Client, KilledWorker, as_completed
+        from dask.distributed import Client
     except ImportError:
         raise PrtError("the Dask backend needs dask[distributed]") from None
     try:
-        client = Client(scheduler, timeout="20s")
+        return Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S:g}s")
     except (OSError, ValueError, TypeError) as exc:  # timeout, refused, malformed address
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise PrtError(f"cannot connect to the Dask scheduler at {scheduler!r} ({msg})") from None
-    try:
-        futures = {client.submit(bake_block, t, pure=False): t for t in tasks}
-        for fut in as_completed(list(futures)):
-            try:
-                st = fut.result()
-            except KilledWorker as exc:  # workers died running this block more often than the scheduler allows
-                t = futures[fut]
-                raise PrtError(f"Dask workers died {exc.allowed_failures + 1} time(s) baking frames {t.f0}..{t.f1 - 1} "
-                               f"(distributed.scheduler.allowed-failures = {exc.allowed_failures}); the blocks done "
-                               f"are kept: run prt bake again to resume") from None
-            yield st
-    finally:
-        client.close()
+        raise PrtError(f"cannot connect to the Dask scheduler at {scheduler!r} ({msg}); nothing written") from None
+
+
+def _run_dask(tasks: list[BlockTask], client: Any) -> Iterator[BlockStats]:
+    from dask.distributed import KilledWorker, as_completed
+
+    futures = {client.submit(bake_block, t, pure=False): t for t in tasks}
+    for fut in as_completed(list(futures)):
+        try:
+            st = fut.result()
+        except KilledWorker as exc:  # workers died running this block more often than the scheduler allows
+            t = futures[fut]
+            raise PrtError(f"Dask workers died {exc.allowed_failures + 1} time(s) baking frames {t.f0}..{t.f1 - 1} "
+                           f"(distributed.scheduler.allowed-failures = {exc.allowed_failures}); the blocks done are "
+                           f"kept: run prt bake again to resume") from None
+        yield st
 
 
 def run_bake(
@@ -430,20 +439,27 @@ def run_bake(
     require_embreex()
     if workers is not None and workers < 1:
         raise PrtError(f"workers must be >= 1, got {workers}")
-    if getattr(cfg, "cloth", None) is not None:  # a cloth run: simulate (resumably) what the vertex cache lacks
-        ensure_simulated(cfg, progress=progress)
-    plan = make_plan(cfg)  # before the lock: a bad config creates nothing
-    b = cfg.bake
-    # the vertex count of a glTF character is known only now: one task's arrays must fit in memory
-    limits.check_bake_task_memory(min(b.frames_per_task, plan.n_frames), plan.character.num_vertices, b.order,
-                                  b.transfer_order if b.transfer else None,
-                                  matrix_order=b.matrix_order if b.transfer_matrix else None, n_rays=b.n_rays,
-                                  subsurface=b.subsurface is not None)
-    with RunDir(cfg.out_dir.resolve()).lock("bake"):
-        return _run_bake(cfg, plan, workers, scheduler, progress, on_block)
+    scheduler = scheduler if scheduler is not None else cfg.bake.scheduler
+    # the scheduler is reached before anything is written (a cloth run's simulation, the run directory, the store)
+    client = connect_scheduler(scheduler) if scheduler else None
+    try:
+        if getattr(cfg, "cloth", None) is not None:  # a cloth run: simulate (resumably) what the vertex cache lacks
+            ensure_simulated(cfg, progress=progress)
+        plan = make_plan(cfg)  # before the lock: a bad config creates nothing
+        b = cfg.bake
+        # the vertex count of a glTF character is known only now: one task's arrays must fit in memory
+        limits.check_bake_task_memory(min(b.frames_per_task, plan.n_frames), plan.character.num_vertices, b.order,
+                                      b.transfer_order if b.transfer else None,
+                                      matrix_order=b.matrix_order if b.transfer_matrix else None, n_rays=b.n_rays,
+                                      subsurface=b.subsurface is not None)
+        with RunDir(cfg.out_dir.resolve()).lock("bake"):
+            return _run_bake(cfg, plan, workers, client, progress, on_block)
+    finally:
+        if client is not None:
+            client.close()
 
 
-def _run_bake(cfg: RunConfig, plan: BakePlan, workers: int | None, scheduler: str | None, progress: bool,
+def _run_bake(cfg: RunConfig, plan: BakePlan, workers: int | None, client: Any, progress: bool,
               on_block: Callable[[BlockStats], None] | None) -> BakeResult:
     path, report = _prepare(cfg, plan)
     repaired = sum(f1 - f0 for f0, f1 in report.blocks) if report is not None else 0
@@ -455,15 +471,15 @@ def _run_bake(cfg: RunConfig, plan: BakePlan, workers: int | None, scheduler: st
     tasks = block_tasks(path, plan)
     total = plan.n_frames
     todo = sum(t.f1 - t.f0 for t in tasks)
-    scheduler = scheduler if scheduler is not None else cfg.bake.scheduler
     if workers is None:
         workers = cfg.bake.workers or os.cpu_count() or 1
     if workers < 1:
         raise PrtError(f"workers must be >= 1, got {workers}")
-    stream = _run_dask(tasks, scheduler) if scheduler else _run_local(tasks, workers)
+    stream = _run_dask(tasks, client) if client is not None else _run_local(tasks, workers)
     frames = rays = 0
     t0 = time.perf_counter()
-    with _progress(progress, total, total - todo, "Dask" if scheduler else f"{workers} worker(s)") as advance:
+    with _progress(progress, total, total - todo, "Dask" if client is not None else f"{workers} worker(s)") \
+            as advance:
         for st in stream:
             frames += st.frames
             rays += st.rays

@@ -215,6 +215,9 @@ def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
 
     if args.motion is not None:
         raise PrtError("--motion is not supported with --ground/--scene: use --clip")
+    if args.renderer != "onnx":
+        raise PrtError(f"--ground/--scene play the run's learned models (--renderer onnx), not --renderer "
+                       f"{args.renderer}")
     if args.out is None and args.png is None:
         raise PrtError("--ground/--scene render offscreen: pass --out video.mp4 or --png DIR")
     if args.scene is not None:

@@ -32,7 +32,9 @@ JSON schema (``RUN/report/results.json``; ``prt eval --json`` prints the same ob
     }
 
 ``psnr_image`` is pooled over the rendered frames (one MSE over every masked pixel of every image
-frame), ``null`` when the dataset has no faces or no character to render.
+frame), ``null`` when the dataset has no faces to render. The dataset is the run's own, else the one recorded
+at training time (named in a warning line), and must be of the model's character; the images need the
+``character.npz`` beside it (missing or another character: a one-line error).
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ import numpy as np
 
 from prt_torch import metrics as M
 from prt_torch.bake.store import BakedDataset, SplitData, open_dataset
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import PrtError, check, warn
 from prt_torch.eval.shipping import (
     BRDFS,
     DIFFUSE,
@@ -110,21 +112,38 @@ def visibility_metrics(pred: np.ndarray, truth: np.ndarray, clip_id: np.ndarray)
 
 
 def _resolve_dataset(run: RunDir, meta: dict[str, Any], dataset: str | Path | None) -> BakedDataset:
+    """The dataset a trained run is scored on: ``dataset`` when given, else the run's own, else the one recorded
+    in ``model.json`` at training time (one warning line names it: it is not the run's own). A dataset of another
+    character than the model's (content hash, vertex count) is a :class:`PrtError`."""
     if dataset is not None:
-        return open_dataset(dataset)
-    if run.dataset_path.exists():
-        return run.dataset()
-    recorded = Path(str(meta.get("dataset", "")))
-    if recorded.exists():
-        return open_dataset(recorded)
-    raise PrtError(f"dataset not found for {run.path} (recorded {recorded}): pass --dataset")
+        ds = open_dataset(dataset)
+    elif run.dataset_path.exists():
+        ds = run.dataset()
+    else:
+        recorded = Path(str(meta.get("dataset", "")))
+        if not (str(meta.get("dataset", "")) and recorded.exists()):
+            raise PrtError(f"dataset not found for {run.path} (recorded {recorded}): pass --dataset")
+        ds = open_dataset(recorded)
+        warn(f"{run.dataset_path} not found: reading the dataset recorded at training time, {ds.path}")
+    want = str(meta.get("character_hash") or "")
+    check(not want or ds.character_hash == want,
+          f"{ds.path} was baked from another character (hash {ds.character_hash[:12]}) than the model of {run.path} "
+          f"({want[:12]})")
+    check(ds.n_vertices == int(meta["n_vertices"]),
+          f"{ds.path} has {ds.n_vertices} vertices, the model of {run.path} {meta['n_vertices']}")
+    return ds
 
 
 def _character(ds: BakedDataset) -> Any:
-    try:
-        return ds.character()
-    except PrtError:
+    """The dataset's character for the rendered images (:meth:`BakedDataset.character`: the ``character.npz``
+    beside it, hash-checked; missing or another character is a :class:`PrtError`); ``None`` when the dataset has no
+    faces to render."""
+    if len(ds.faces) == 0:
         return None
+    character = ds.character()
+    check(character.num_vertices == ds.n_vertices,
+          f"{ds.path}: {ds.n_vertices} vertices, its character {character.num_vertices}")
+    return character
 
 
 def evaluate_run(run_dir: str | Path | RunDir, dataset: str | Path | None = None, max_frames: int | None = None,
@@ -157,7 +176,7 @@ def evaluate_run(run_dir: str | Path | RunDir, dataset: str | Path | None = None
     light_set = shipping_lights(order, shared, names=lights)
     rpos = shipping_rpos(order, run)
     character = _character(ds)
-    can_render = character is not None and len(ds.faces) > 0 and character.num_vertices == ds.n_vertices
+    can_render = character is not None
     camera = player_camera(character) if character is not None else None
     eye = camera.eye if camera is not None else np.array([0.0, -5.0, 1.0])
     shader = ShippingShader(light_set, rpos, eye)

@@ -16,7 +16,9 @@ Which library reads what:
 
 Malformed files: every reader reads the header first and refuses an image whose float32 RGB pixels would
 exceed ``MAX_IMAGE_BYTES`` *before* allocating (the message gives the estimate); truncated pixel data and
-NaN/Inf pixels are refused too. Library chatter (OpenCV log lines, OpenEXR's native messages, Python and
+NaN/Inf pixels are refused too. Negative radiance (PFM and EXR can store it; it is not light) is clamped to 0
+with one :func:`~prt_torch.errors.warn` line giving the number of pixels clamped (:func:`_as_rgb`, the one
+pixel rule of every reader). Library chatter (OpenCV log lines, OpenEXR's native messages, Python and
 numpy warnings) is silenced around the reads (:func:`quiet_native`), so a bad file gives exactly one
 :class:`~prt_torch.errors.PrtError` line.
 
@@ -39,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import PrtError, warn
 from prt_torch.io import atomic_write_bytes
 
 #: file suffix -> reader name
@@ -132,7 +134,8 @@ def _check_file(path: str | os.PathLike[str]) -> Path:
 
 
 def _as_rgb(img: np.ndarray, path: Path) -> np.ndarray:
-    """``(H, W)``, ``(H, W, 1|3|4)`` -> ``(H, W, 3)`` float32 (grey replicated, alpha dropped)."""
+    """``(H, W)``, ``(H, W, 1|3|4)`` -> ``(H, W, 3)`` float32 (grey replicated, alpha dropped); NaN/Inf pixels are
+    a :class:`PrtError`, negative values are clamped to 0 with a warning saying how many pixels had one."""
     if img.ndim == 2:
         img = img[..., None]
     if img.ndim != 3 or img.shape[2] not in (1, 3, 4) or img.shape[0] < 1 or img.shape[1] < 1:
@@ -144,6 +147,12 @@ def _as_rgb(img: np.ndarray, path: Path) -> np.ndarray:
     finite = np.isfinite(out).all(axis=2)
     if not finite.all():
         raise PrtError(f"{path.name} contains NaN or Inf in {int((~finite).sum())} pixel(s)")
+    negative = (out < 0).any(axis=2)
+    if negative.any():
+        n = int(negative.sum())
+        warn(f"{path.name}: clamped negative radiance to 0 in {n} of {negative.size} pixel(s) "
+             f"(lowest value {float(out.min()):.6g})")
+        out = np.maximum(out, 0.0)
     return out
 
 

@@ -19,13 +19,12 @@ roughness 0.5, dielectric) and keeps the run's first catalogue BRDF by default.
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import PrtError, warn
 from prt_torch.rig.material import (
     MATERIAL_BRDF,
     character_material,
@@ -71,9 +70,11 @@ def brdf_names(bundle: Any) -> list[str]:
     return [*bundle.brdf_names, MATERIAL_BRDF]
 
 
-def default_brdf(bundle: Any) -> str:
-    """``material`` for a character with its own material (a glTF character), else the catalogue's first BRDF."""
-    return MATERIAL_BRDF if getattr(bundle.character, "material", None) is not None else bundle.brdf_names[0]
+def default_brdf(bundle: Any, material: bool = True) -> str:
+    """``material`` for a character with its own material (a glTF character), else the catalogue's first BRDF
+    (``material=False``: a renderer that shades catalogue BRDFs only; the catalogue's first for every character)."""
+    own = material and getattr(bundle.character, "material", None) is not None
+    return MATERIAL_BRDF if own else bundle.brdf_names[0]
 
 
 def material_rpo(bundle: Any, build: bool = True) -> Any:
@@ -86,17 +87,17 @@ def material_rpo(bundle: Any, build: bool = True) -> Any:
     return None if path is None else load_rpo_tensors(path, bundle.order, bundle.n_terms)
 
 
-def select_rpo(bundle: Any, name: str | None = None) -> Any:
+def select_rpo(bundle: Any, name: str | None = None, material: bool = True) -> Any:
     """The RPO to play: ``name`` from the run's catalogue, an RPO ``.npz`` file, or ``material``; ``None``:
-    :func:`default_brdf` (when that is ``material`` and it can be neither loaded nor built - a player-only
-    install without scikit-learn - the catalogue's first BRDF, with a warning)."""
+    :func:`default_brdf` (``material``: as there; when the default is ``material`` and it can be neither loaded nor
+    built - a player-only install without scikit-learn - the catalogue's first BRDF, with a warning)."""
     if name is None:
-        name = default_brdf(bundle)
+        name = default_brdf(bundle, material)
         if name == MATERIAL_BRDF:
             try:
                 return material_rpo(bundle)
             except PrtError as exc:
-                warnings.warn(f"{exc}; playing {bundle.brdf_names[0]!r} instead", stacklevel=2)
+                warn(f"{exc}; playing {bundle.brdf_names[0]!r} instead")
                 return bundle.rpo(bundle.brdf_names[0])
     if str(name) == MATERIAL_BRDF:
         return material_rpo(bundle)

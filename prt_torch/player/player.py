@@ -118,7 +118,8 @@ class Player:
     Args:
         run_dir: exported run directory.
         env: HDR environment map path, or ``None`` for the procedural sun + sky.
-        brdf: BRDF name of the run's RPO catalogue (or an RPO ``.npz``); ``None``: the first one.
+        brdf: BRDF name of the run's RPO catalogue (or an RPO ``.npz``, or ``material``); ``None``: the character's
+            own material when it has one (:attr:`shades_material`), else the catalogue's first.
         graph: ``"fused"`` (one ORT call per frame), ``"split"`` (visibility then shading) or ``"overlap"``
             (split, with the visibility call running on a worker thread during the numpy posing:
             :meth:`compute_overlapped`).
@@ -136,6 +137,10 @@ class Player:
             the whole crowd in ONE call. On a CPU the shading's per-vertex intermediates grow with ``B`` and leave
             the cache, so a few characters per call can beat one call (``prt bench play --crowd-chunk`` measures).
     """
+
+    #: whether this player shades the character's own material (``material``, the default BRDF of a character
+    #: that has one); a renderer of catalogue BRDFs only sets ``False`` and defaults to the catalogue's first
+    shades_material: bool = True
 
     def __init__(self, run_dir: str | os.PathLike[str] | RunDir, env: str | os.PathLike[str] | None = None,
                  brdf: str | None = None, graph: str = "fused", threads: int = 2,
@@ -162,7 +167,7 @@ class Player:
         self.light_angle = 0.0
         self._lobe_dirs = self.lighting.dirs
         # brdf None: the character's own material (a glTF character), else the catalogue's first (player.material)
-        self.rpo: RPOTensors = select_rpo(self.bundle, brdf)
+        self.rpo: RPOTensors = select_rpo(self.bundle, brdf, material=self.shades_material)
         self.exposure = exposure
         self.unshadowed = hemisphere_visibility(self.order, self.bundle.below_horizon)
         ch = self.character
@@ -367,19 +372,27 @@ class Player:
             timer.add("shading", time.perf_counter() - t2)
         return state, out
 
-    def colors(self, radiance: np.ndarray) -> np.ndarray:
-        """uint8 colours; fixes the tone map (exposure, white) from the first call when it was not given.
-        The character's base colour (its material, :mod:`prt_torch.player.material`) multiplies the radiance
-        (per vertex here; a textured character's rendered images multiply it per pixel: :meth:`render_frame`)."""
+    def surface_radiance(self, radiance: np.ndarray) -> np.ndarray:
+        """The character's ``radiance (V, 3)`` times its base colour (its material,
+        :mod:`prt_torch.player.material`; per vertex), what :meth:`colors` tone-maps."""
         if not hasattr(self, "_base_color"):
             from prt_torch.player.material import vertex_base_color
 
             self._base_color = vertex_base_color(self.character)
-        if self._base_color is not None:
-            radiance = radiance * self._base_color
+        return radiance if self._base_color is None else radiance * self._base_color
+
+    def tone(self, radiance: np.ndarray) -> np.ndarray:
+        """uint8 colours of any ``radiance (N, 3)`` (the character's surface radiance, or a floor's) under the
+        player's tone map; fixes it (exposure, white) from the first call when it was not given."""
         if self.exposure is None:
             self.exposure = auto_tonemap(radiance)
         return self.exposure(radiance)
+
+    def colors(self, radiance: np.ndarray) -> np.ndarray:
+        """uint8 colours of the character's ``radiance (V, 3)``: :meth:`surface_radiance` (the base colour
+        multiplies it per vertex here; a textured character's rendered images multiply it per pixel:
+        :meth:`render_frame`) through :meth:`tone`."""
+        return self.tone(self.surface_radiance(radiance))
 
     # -- rendering -----------------------------------------------------------------------------
     def renderer(self, off_screen: bool = True):  # -> MeshRenderer

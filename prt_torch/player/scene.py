@@ -241,16 +241,19 @@ class ScenePlayer:
 
     def colors(self, f: SceneFrame) -> tuple[list[np.ndarray], np.ndarray | None]:
         """uint8 colours of every character and the ground under ONE tone map (fixed on the first call from all
-        radiance of that frame; :func:`~prt_torch.player.tonemap.auto_tonemap`, applied by ``Player.colors``)."""
+        radiance of that frame: each character's surface radiance - times its own base colour - and the ground's,
+        whose albedo is in its radiance already; :func:`~prt_torch.player.tonemap.auto_tonemap`, applied by
+        ``Player.tone``)."""
+        surface = [p.surface_radiance(r[0]) for p, r in zip(self.actor_players, f.radiance, strict=True)]
         if self.exposure is None:
             from prt_torch.player.tonemap import auto_tonemap
 
-            parts = [r[0] for r in f.radiance] + ([f.ground_radiance] if f.ground_radiance is not None else [])
+            parts = surface + ([f.ground_radiance] if f.ground_radiance is not None else [])
             self.exposure = auto_tonemap(np.concatenate(parts))
         for p in self.players.values():
             p.exposure = self.exposure
-        cols = [p.colors(r[0]) for p, r in zip(self.actor_players, f.radiance, strict=True)]
-        gcol = self.primary.colors(f.ground_radiance) if f.ground_radiance is not None else None
+        cols = [p.tone(r) for p, r in zip(self.actor_players, surface, strict=True)]
+        gcol = self.primary.tone(f.ground_radiance) if f.ground_radiance is not None else None
         return cols, gcol
 
     # -- rendering -------------------------------------------------------------------------------------------

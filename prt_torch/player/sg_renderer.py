@@ -51,11 +51,14 @@ class SGPlayer(Player):
     Args:
         run_dir: an exported run (its character, vertex frames and BRDF names are used; not its models).
         env: HDR environment map, or ``None`` for the procedural sky + sun.
-        brdf: a catalogue BRDF name (``lambert``, ``phong``, ``blinn``, ``ggx``, ``ward``); default the run's first.
+        brdf: a catalogue BRDF name (``lambert``, ``phong``, ``blinn``, ``ggx``, ``ward``); default the run's first
+            (for a character with its own material too: :attr:`Player.shades_material`).
         resolution: voxel grid side (64-256). peaks: extra cones toward the light peaks (seed 004 Fig. 8).
         device: torch device (``"cpu"``, ``"cuda"``). max_level: HEALPix scales of the light fit.
         **kwargs: passed to :class:`Player` (``window_size``, ``exposure``, ...).
     """
+
+    shades_material = False  # SG fits of the catalogue BRDFs only: a glTF character's default is the catalogue's first
 
     def __init__(self, run_dir: Any, env: str | os.PathLike[str] | None = None, brdf: str | None = None,
                  resolution: int = 128, peaks: bool = True, device: str = "cpu", max_level: int = 2,

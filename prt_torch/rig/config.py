@@ -217,7 +217,9 @@ class CharacterConfig(BaseModel):
     ``random_perturb_deg`` is the perturbation range of random poses of characters WITHOUT joint
     limits (every glTF/BVH character): each non-root joint of a training frame is rotated by up to
     this many degrees about a random axis (``random_mode: uniform``), or the joints of the moved
-    chains are (``sparse``). Characters with joint limits (the built-in humanoid) ignore it.
+    chains are (``sparse``). Characters with joint limits (the built-in humanoid) ignore it. Likewise ``density``
+    applies to the built-in humanoid only and ``height`` to a glTF file only; a key set where it has no effect is
+    one warning line when the character is loaded (:meth:`ineffective_keys`).
 
     ``random_mode: cpca`` resamples the training frames' pose space (seed 001 sec. 2): k-means of their
     pose features into ``random_cpca_clusters`` clusters (1..64), a ``random_cpca_components``-component
@@ -257,6 +259,22 @@ class CharacterConfig(BaseModel):
     seed: int = Field(default=0, ge=0, le=L.MAX_SEED)
     # motion files retargeted onto the character as clips (MotionConfig; prt_torch.rig.retarget)
     motions: list[MotionConfig] = Field(default_factory=list, max_length=L.MAX_LIST_LENGTH)
+
+    def ineffective_keys(self, builtin: bool, joint_limits: bool) -> list[str]:
+        """One line for each key set in this section that has no effect on the character it loads (``builtin``:
+        the built-in humanoid, else a glTF file; ``joint_limits``: the character has joint limits), saying why:
+        ``density`` (the built-in humanoid only), ``height`` (glTF only), ``random_perturb_deg`` (characters
+        without joint limits only)."""
+        out = []
+        if not builtin and "density" in self.model_fields_set:
+            out.append("character.density has no effect on a glTF character (it sets the built-in humanoid's "
+                       "vertex density); ignored")
+        if builtin and self.height is not None:
+            out.append("character.height has no effect on the built-in character (it rescales a glTF file); ignored")
+        if joint_limits and "random_perturb_deg" in self.model_fields_set:
+            out.append("character.random_perturb_deg has no effect on a character with joint limits (the built-in "
+                       "humanoid's random poses are drawn within its limits); ignored")
+        return out
 
     @field_validator("motions")
     @classmethod

@@ -38,8 +38,9 @@ lengths against the file) and decodes every buffer (strict base64; truncated buf
 (acyclic, at most one parent per node), every index, every accessor's byte span against its
 bufferView and buffer (``count >= 1``, ``stride >= element size``), accessor types per use, node
 transforms (16 / 3 / 4 / 3 finite numbers) and animation channel shapes. Data read later (positions,
-times, matrices) is checked for NaN/inf, and a clip is refused beyond ``MAX_CLIP_BYTES``. Every
-problem is one :class:`~prt_torch.errors.PrtError` line.
+times, matrices) is checked for NaN/inf, rest vertices for absurd coordinates and stray vertices
+(:func:`check_extent`), and a clip is refused beyond ``MAX_CLIP_BYTES``. Every problem is one
+:class:`~prt_torch.errors.PrtError` line.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from prt_torch import limits as L
 from prt_torch.errors import PrtError, check
 from prt_torch.rig.character import Character
 from prt_torch.rig.clip import Clip
@@ -532,6 +534,29 @@ def _sample(times: np.ndarray, values: np.ndarray, interp: str, t: np.ndarray, i
     return out
 
 
+def check_extent(positions: np.ndarray, name: str) -> None:
+    """Refuse rest vertex ``positions (N, 3)`` (z-up world, file units) with a coordinate beyond
+    :data:`~prt_torch.limits.MAX_COORDINATE`, or a vertex farther from the per-axis median than
+    :data:`~prt_torch.limits.MAX_VERTEX_SPREAD` times the median vertex distance from it (a stray vertex: it
+    would set the character's size and bounds); one :class:`PrtError` line naming the vertex."""
+    big = np.abs(positions).max(axis=1)
+    i = int(np.argmax(big))
+    check(big[i] <= L.MAX_COORDINATE, f"{name}: vertex {i} at {_point(positions[i])} has a coordinate beyond "
+                                      f"{L.MAX_COORDINATE:g} (limits.MAX_COORDINATE)")
+    dist = np.linalg.norm(positions - np.median(positions, axis=0), axis=1)
+    typical = float(np.median(dist))
+    if typical > 0:  # else most vertices coincide: nothing to measure a stray one against
+        i = int(np.argmax(dist))
+        ratio = float(dist[i]) / typical
+        check(ratio <= L.MAX_VERTEX_SPREAD, f"{name}: vertex {i} at {_point(positions[i])} lies {ratio:.0f} times "
+                                            f"the median vertex distance ({typical:.3g}) from the mesh's median, over "
+                                            f"{L.MAX_VERTEX_SPREAD:g} (limits.MAX_VERTEX_SPREAD): a stray vertex")
+
+
+def _point(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{float(x):.4g}" for x in p) + ")"
+
+
 def clip_names(animations: list[tuple[int, str | None]]) -> list[str]:
     """Clip names of glTF animations ``(index in the file's animations array, name or None)``, in file order.
 
@@ -695,6 +720,7 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
     jnt = np.where(wgt > 0, old_to_new[jnt], 0)  # canonical index for zero weights (welding)
     pos = pos @ cg[:3, :3].T + cg[:3, 3]
     check(bool(np.all(np.isfinite(pos.astype(np.float32)))), f"{path.name}: rest vertex positions overflow")
+    check_extent(pos, path.name)
     pos_w, faces_w, (jnt_w, wgt_w), index = weld(pos, faces, jnt, wgt)
     check(faces_w.shape[0] > 0, f"{path.name}: every triangle of the skinned mesh is degenerate")
     if have_normals:

@@ -187,3 +187,37 @@ def test_bad_motions_are_one_line_errors(small: Character, shared_data, tmp_path
         config_from_dict(_cfg(motions=[{"file": "a.bvh", "name": "m"}, {"file": "b.bvh", "name": "m"}]))
     with pytest.raises(PrtError, match="motions"):
         config_from_dict(_cfg(motions=[{"file": "a.bvh", "name": "m", "speed": 2}]))
+
+
+def test_keys_without_effect_on_the_character_warn(tmp_path) -> None:  # noqa: ANN001
+    """``character.density`` (built-in humanoid only) on a glTF character, ``height`` (glTF only) and
+    ``random_perturb_deg`` (characters without joint limits only) on the built-in one: one warning each, naming the
+    key, and the character is the one loaded without the key. Keys left at their defaults, or that apply, are
+    silent."""
+    import warnings
+
+    from prt_torch.bake.plan import load_character
+    from prt_torch.errors import PrtWarning
+    from prt_torch.rig.gltf import load_gltf
+    from tests.rig.test_gltf import write_rig
+
+    rig = write_rig(tmp_path / "rig.glb")
+
+    def load(**character: object) -> tuple[Character, list[str]]:
+        cfg = config_from_dict({"name": "t", "character": {"fps": FPS, **character}}, base_dir=tmp_path)
+        with warnings.catch_warnings(record=True) as record:
+            warnings.simplefilter("always")
+            ch = load_character(cfg)
+        return ch, [str(w.message) for w in record if issubclass(w.category, PrtWarning)]
+
+    ch, got = load(source="rig.glb", density=0.5, height=1.8, random_perturb_deg=10.0)
+    assert got == ["character.density has no effect on a glTF character (it sets the built-in humanoid's vertex "
+                   "density); ignored"]
+    assert ch.content_hash() == load_gltf(rig, fps=FPS, height=1.8).content_hash()
+    ch, got = load(source="builtin", density=0.05, height=1.8, random_perturb_deg=10.0)
+    assert got == ["character.height has no effect on the built-in character (it rescales a glTF file); ignored",
+                   "character.random_perturb_deg has no effect on a character with joint limits (the built-in "
+                   "humanoid's random poses are drawn within its limits); ignored"]
+    assert ch.content_hash() == make_character(0.05, fps=FPS).content_hash()
+    assert load(source="rig.glb", height=1.8, random_perturb_deg=10.0)[1] == []
+    assert load(source="builtin", density=0.05)[1] == []

@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import struct
 import tempfile
+import warnings
 from pathlib import Path
 
 import cv2
@@ -15,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import PrtError, PrtWarning
 from prt_torch.light.envmap import load_envmap
 from prt_torch.light.readers import MAX_IMAGE_BYTES, read_hdr_image, read_pfm, write_pfm
 from tests.rig.test_gltf_malformed import time_limit
@@ -142,6 +143,33 @@ def test_non_finite_pixels_refused(tmp_path: Path) -> None:
     write_pfm(q, img)
     with pytest.raises(PrtError, match=r"contains NaN or Inf in 1 pixel"):
         read_pfm(q)
+
+
+@pytest.mark.parametrize("suffix", [".exr", ".pfm"])
+def test_negative_radiance_is_clamped_with_one_warning(tmp_path: Path, suffix: str) -> None:
+    """PFM and EXR store negative floats; radiance cannot be negative: clamped to 0, one warning line giving the
+    number of pixels with a negative channel (3 here, one with two) and the lowest value."""
+    img = _image()
+    img[1, 2] = [-0.5, 1.0, -2.0]
+    img[3, 4, 1] = -1e-3
+    img[7, 15, 0] = -0.25
+    p = tmp_path / f"neg{suffix}"
+    if suffix == ".exr":
+        with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                          {"RGB": img}) as f:
+            f.write(str(p))
+    else:
+        write_pfm(p, img)
+    with pytest.warns(PrtWarning) as record:
+        got = read_hdr_image(p)
+    assert [str(w.message) for w in record] == [
+        f"neg{suffix}: clamped negative radiance to 0 in 3 of 128 pixel(s) (lowest value -2)"]
+    # exact: the float32 pixels written and read back, clamped by the same maximum
+    np.testing.assert_allclose(got, np.maximum(img, 0.0), rtol=0, atol=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a map without negative pixels reads without a warning
+        write_pfm(tmp_path / "pos.pfm", np.maximum(img, 0.0))
+        np.testing.assert_allclose(read_hdr_image(tmp_path / "pos.pfm"), got, rtol=0, atol=0)  # the same pixels
 
 
 @pytest.mark.parametrize("suffix, cut", [(".exr", 300), (".hdr", 200), (".exr", 0.8)])

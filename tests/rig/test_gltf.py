@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -60,11 +61,16 @@ def cubic_tangents(n: int) -> tuple[np.ndarray, np.ndarray]:
     return TANGENT_SCALE * rng.normal(size=(n, 4)), TANGENT_SCALE * rng.normal(size=(n, 4))
 
 
-def write_rig(path: Path, *, skin: bool = True, nan: bool = False, weight_scale: float = 1.0) -> Path:
+def write_rig(path: Path, *, skin: bool = True, nan: bool = False, weight_scale: float = 1.0,
+              stray: float | None = None) -> Path:
+    """The synthetic two-joint prism rig (``nan``: a NaN vertex coordinate; ``stray``: vertex 4 moved to this x)."""
     pos, weights, faces = prism_mesh()
     if nan:
         pos = pos.copy()
         pos[4, 1] = np.nan
+    if stray is not None:
+        pos = pos.copy()
+        pos[4, 0] = stray
     b = GltfBuilder()
     # primitive A: the lower two rings, indexed; primitive B: rings 1-2 non-indexed (duplicates to weld)
     fa = faces[[f for f in range(len(faces)) if faces[f].max() <= 5]]
@@ -207,6 +213,37 @@ def test_bad_gltf_raises(tmp_path: Path, kwargs: dict, match: str) -> None:
     with pytest.raises(PrtError, match=match) as e:
         load_gltf(path)
     assert "\n" not in str(e.value)
+
+
+def test_stray_vertex_is_refused(tmp_path: Path) -> None:
+    """One vertex far from the rest (the prism is 2 units tall) would become the character's size: with
+    ``height`` every other vertex would collapse to a point. Refused at load time, with or without ``height``:
+    a coordinate beyond the absolute bound, or a vertex beyond 100 median distances from the median (reference
+    numbers from the mesh-space prism: the root transforms permute axes, so medians and distances carry over)."""
+    for height in (None, 1.8):
+        with pytest.raises(PrtError, match=r"^huge\.glb: vertex 4 at \(1e\+30, [^)]*\) has a coordinate beyond "
+                                           r"1e\+07 \(limits\.MAX_COORDINATE\)$"):
+            load_gltf(write_rig(tmp_path / "huge.glb", stray=1e30), height=height)
+    ref = prism_mesh()[0].copy()
+    ref[4, 0] = -3e3
+    d = np.linalg.norm(ref - np.median(ref, axis=0), axis=1)
+    typical = float(np.median(d))
+    want = re.escape(f" lies {d[4] / typical:.0f} times the median vertex distance ({typical:.3g}) from the mesh's "
+                     f"median, over 100 (limits.MAX_VERTEX_SPREAD): a stray vertex")
+    for height in (None, 1.8):
+        with pytest.raises(PrtError, match=r"^stray\.glb: vertex 4 at \(-2999(\.\d+)?, [^)]*\)" + want + "$"):
+            load_gltf(write_rig(tmp_path / "stray.glb", stray=-3e3), height=height)
+
+
+def test_far_but_plausible_vertex_loads(tmp_path: Path) -> None:
+    """A vertex 5 units out (a few times the prism's size: a prop, a spike) is a shape, not a stray vertex."""
+    c = load_gltf(write_rig(tmp_path / "far.glb", stray=5.0), height=1.8)
+    assert np.ptp(c.rest_vertices[:, 2]) == pytest.approx(1.8, rel=1e-5)
+    ref = prism_mesh()[0].copy()
+    ref[4, 0] = 5.0
+    d = np.linalg.norm(ref - ref.mean(0), axis=1)
+    got = np.linalg.norm(c.rest_vertices - c.rest_vertices.mean(0), axis=1)
+    np.testing.assert_allclose(np.sort(got) / got.max(), np.sort(d) / d.max(), atol=1e-5)  # the same shape
 
 
 def test_bad_files_raise(tmp_path: Path) -> None:
