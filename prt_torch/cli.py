@@ -73,8 +73,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: commands whose results must not depend on the machine (the bake's plan, the fits): they start with pinned BLAS
+#: kernels (prt_torch.kernels, docs/DESIGN.md "Determinism")
+PINNED_COMMANDS = ("bake", "train", "demo")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` and run the command: its exit status (argument errors exit 2 from the parser)."""
+    words = list(sys.argv[1:] if argv is None else argv)
+    if words and words[0] in PINNED_COMMANDS:
+        from prt_torch.kernels import pin_kernels
+
+        pin_kernels()  # before the command modules load numpy / torch
     parser = build_parser()
     args = parser.parse_args(argv)
     with warnings.catch_warnings():

@@ -66,9 +66,11 @@ def _run_all(jobs: list[tuple[int, Path, list[str]]], parallel: int = 2) -> dict
         while todo and len(running) < parallel:
             k, d, args = todo.pop(0)
             log = d / f"writes.{k}.log"
+            # each job its own empty RPO cache: whether a catalogue entry is written (one atomic write more)
+            # must not depend on which job of the pool reached the shared cache first
             p = subprocess.Popen([sys.executable, "-c", DRIVER, str(k), str(log), *args], cwd=REPO,
                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                 env={**os.environ, "OMP_NUM_THREADS": "1"})
+                                 env={**os.environ, "OMP_NUM_THREADS": "1", "PRT_CACHE": str(d / f"cache.{k}")})
             running.append((k, log, p))
         k, log, p = running.pop(0)
         _, err = p.communicate(timeout=300)
@@ -124,12 +126,13 @@ def test_kill_train_at_every_write(tiny_run: Path, tmp_path: Path, capsys: pytes
         cfg.write_text(yaml.safe_dump({**TINY_CONFIG, "train": train_cfg, "run_dir": str(run)}))
         return k, tmp_path, ["train", str(cfg)]
 
-    n = 8  # stages.json (key dropped), 2 models, model.pt, metrics.json, model.json, stages.json (+1 spare)
+    # the lock holder's file, stages.json (key dropped), 2 models, model.pt, metrics.json, model.json, stages.json
+    n = 8
     results = _run_all([job(k) for k in range(n + 1)])
     ref = results.pop(0)
     assert ref[0] == 0, ref[1][-2000:]
     writes = ref[2]
-    assert len(writes) <= n and "model.json" in writes[-2] and "stages.json" in writes[-1], writes
+    assert len(writes) == n and "model.json" in writes[-2] and "stages.json" in writes[-1], writes
     n = len(writes)
     begin = 1 + next(i for i, w in enumerate(writes) if w.endswith("stages.json"))
     commit = len(writes) - 1  # model.json: the commit record
@@ -185,12 +188,15 @@ def test_kill_export_at_every_write(tiny_run: Path, tmp_path: Path, capsys: pyte
         run = _copy(tiny_run, tmp_path / f"run{k}")
         return k, tmp_path, ["export", str(run), *args]
 
-    n = 11  # stages.json (key dropped), frames, 1 RPO, 3 graphs, blockers, shexp graph, export.json, stages.json (+1)
+    # the lock holder's file, stages.json (key dropped), frames, the RPO cache entry (each job starts with an empty
+    # cache), 1 RPO, 3 graphs, blockers, shexp graph, export.json, stages.json: the same sequence in every job
+    n = 12
     results = _run_all([job(k) for k in range(n + 1)])
     ref = results.pop(0)
     assert ref[0] == 0, ref[1][-2000:]
     writes = ref[2]
-    assert len(writes) <= n and "export.json" in writes[-2] and "stages.json" in writes[-1], writes
+    assert len(writes) == n and "export.json" in writes[-2] and "stages.json" in writes[-1], writes
+    assert sum("rpo_cache" in w for w in writes) == 1, writes
     n = len(writes)
     begin = 1 + next(i for i, w in enumerate(writes) if w.endswith("stages.json"))
     commit = len(writes) - 1  # export.json: the commit record
@@ -204,7 +210,8 @@ def test_kill_export_at_every_write(tiny_run: Path, tmp_path: Path, capsys: pyte
             assert rc == 0, (k, err[-2000:])
             continue
         assert rc == -signal.SIGKILL, (k, err[-2000:])
-        assert _temporaries(run.path), k
+        target = Path(writes[k - 1].split(" ", 1)[1].replace("run0", f"run{k}").replace("cache.0", f"cache.{k}"))
+        assert any(parse_temporary(p) for p in target.parent.iterdir()), (k, target)  # killed mid-write there
         assert k <= begin or "export" not in run.stage_keys(), k
         state = _bundle_state(run.path)
         if isinstance(state, str):

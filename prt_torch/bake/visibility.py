@@ -17,6 +17,7 @@ from functools import lru_cache
 import numpy as np
 
 from prt_torch.errors import PrtError
+from prt_torch.exact import fixed_order_matmul
 from prt_torch.sh.basis import check_order, sh_basis
 
 
@@ -84,5 +85,6 @@ def project_visibility(visible: np.ndarray, table: np.ndarray, phi: np.ndarray) 
     Returns:
         ``(V, C)`` float32 coefficients in each vertex frame ``(t, b, n)``.
     """
-    rotated = (table @ visible).T  # (V, C): coefficients of f'(d) = V(Rz(phi) d)
+    # (V, C): coefficients of f'(d) = V(Rz(phi) d); a fixed-order sum over the rays: the bake is bit-exact
+    rotated = fixed_order_matmul(table, visible).T
     return rotate_sh_z(np.ascontiguousarray(rotated), phi)

@@ -454,6 +454,9 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
                                                 "train_rel_err_unquantised", "seconds")}
     atomic_write_json(run.metrics_json, metrics)
     meta["files"] = run.unit_hashes(unit_files(run, list(fits)))
+    from prt_torch.kernels import kernel_state
+
+    meta["blas_kernels"] = kernel_state()  # "pinned": the same fit on every x86-64 AVX2 machine (DESIGN.md)
     atomic_write_json(run.model_json, meta)  # the commit record: written last
     run.mark_done("train", train_key(ds, cfg))
     return metrics

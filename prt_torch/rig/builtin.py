@@ -44,10 +44,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.exact import small_matmul
 from prt_torch.rig.character import Character
 from prt_torch.rig.clip import Clip
 from prt_torch.rig.mesh import vertex_normals
-from prt_torch.rig.rotations import axis_angle_matrix
+from prt_torch.rig.rotations import axis_angle_matrix, rigid_inverse
 from prt_torch.rig.skeleton import forward_kinematics
 from prt_torch.rig.surface_nets import surface_nets
 
@@ -181,7 +182,7 @@ def _part_distances(parts: list[_Part], p: np.ndarray, cull: bool = False) -> np
         b = np.asarray(part.b)
         if part.kind == "capsule":
             ab = b - a
-            t = np.clip((q - a) @ ab / (ab @ ab), 0.0, 1.0)
+            t = np.clip(((q - a) * ab).sum(axis=1) / (ab * ab).sum(), 0.0, 1.0)  # no BLAS: the same mesh everywhere
             dv = q - (a + t[:, None] * ab)
             out[i, sel] = np.sqrt(np.einsum("ij,ij->i", dv, dv)) - (part.ra + t * (part.rb - part.ra))
         else:
@@ -301,7 +302,7 @@ def _skin_weights(verts: np.ndarray, faces: np.ndarray, parents: np.ndarray, den
     np.add.at(w.T, part_joint, score)
     # soft "neighbours of the nearest part's joint" mask: continuous where the nearest part changes
     near = np.exp(-(d - d.min(axis=0)) / (0.5 * SKIN_FALLOFF))  # (P, V)
-    mask = (near.T @ allowed[part_joint]) / near.sum(axis=0)[:, None]  # (V, J)
+    mask = small_matmul(near.T, allowed[part_joint]) / near.sum(axis=0)[:, None]  # (V, J), fixed order
     w *= mask
     lap = _adjacency(faces, verts.shape[0])
     for _ in range(int(round(12 * density)) + 2):  # ~ the same geometric smoothing radius at every density
@@ -364,6 +365,14 @@ def _dof(d: dict[str, np.ndarray], key: str, n: int) -> np.ndarray:
     return np.full(n, NEUTRAL.get(base, 0.0))
 
 
+def _chain(*rots: np.ndarray) -> np.ndarray:
+    """``R_1 @ R_2 @ ...`` of ``(n, 3, 3)`` rotation stacks, in fixed order (:func:`prt_torch.exact.small_matmul`)."""
+    out = rots[0]
+    for r in rots[1:]:
+        out = small_matmul(out, r)
+    return out
+
+
 def _dofs_to_rotations(d: dict[str, np.ndarray], n: int) -> np.ndarray:
     """Local rotations ``(n, J, 3, 3)`` (parent frame, arm reference = hanging straight down) from DOF curves."""
     rot = np.tile(np.eye(3), (n, len(JOINT_NAMES), 1, 1))
@@ -372,21 +381,21 @@ def _dofs_to_rotations(d: dict[str, np.ndarray], n: int) -> np.ndarray:
         return _dof(d, k, n)
 
     X, Y, Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
-    rot[:, _IDX["pelvis"]] = _R(Z, g("root_yaw")) @ _R(X, g("root_pitch")) @ _R(Y, g("root_roll"))
+    rot[:, _IDX["pelvis"]] = _chain(_R(Z, g("root_yaw")), _R(X, g("root_pitch")), _R(Y, g("root_roll")))
     for j in ("spine", "chest"):
-        rot[:, _IDX[j]] = _R(Z, g(f"{j}_twist")) @ _R(X, g(f"{j}_flex")) @ _R(Y, g(f"{j}_side"))
+        rot[:, _IDX[j]] = _chain(_R(Z, g(f"{j}_twist")), _R(X, g(f"{j}_flex")), _R(Y, g(f"{j}_side")))
     for j in ("neck", "head"):
-        rot[:, _IDX[j]] = _R(Z, g(f"{j}_twist")) @ _R(X, g(f"{j}_flex")) @ _R(Y, g(f"{j}_side"))
+        rot[:, _IDX[j]] = _chain(_R(Z, g(f"{j}_twist")), _R(X, g(f"{j}_flex")), _R(Y, g(f"{j}_side")))
     for s, sx in _SIDE.items():
         my = (0.0, -sx, 0.0)
         mz = (0.0, 0.0, -sx)
-        rot[:, _IDX[f"clavicle_{s}"]] = _R(mz, g(f"{s}_clav_fwd")) @ _R(my, g(f"{s}_clav_up"))
-        rot[:, _IDX[f"shoulder_{s}"]] = (_R(mz, g(f"{s}_shoulder_horiz")) @ _R(X, -g(f"{s}_shoulder_flex"))
-                                         @ _R(my, g(f"{s}_shoulder_elev")) @ _R(Z, sx * g(f"{s}_shoulder_twist")))
+        rot[:, _IDX[f"clavicle_{s}"]] = _chain(_R(mz, g(f"{s}_clav_fwd")), _R(my, g(f"{s}_clav_up")))
+        rot[:, _IDX[f"shoulder_{s}"]] = _chain(_R(mz, g(f"{s}_shoulder_horiz")), _R(X, -g(f"{s}_shoulder_flex")),
+                                               _R(my, g(f"{s}_shoulder_elev")), _R(Z, sx * g(f"{s}_shoulder_twist")))
         rot[:, _IDX[f"elbow_{s}"]] = _R(X, -g(f"{s}_elbow"))
         rot[:, _IDX[f"wrist_{s}"]] = _R(X, -g(f"{s}_wrist"))
-        rot[:, _IDX[f"hip_{s}"]] = (_R(Z, sx * g(f"{s}_hip_twist")) @ _R(X, -g(f"{s}_hip_flex"))
-                                    @ _R(my, g(f"{s}_hip_abd")))
+        rot[:, _IDX[f"hip_{s}"]] = _chain(_R(Z, sx * g(f"{s}_hip_twist")), _R(X, -g(f"{s}_hip_flex")),
+                                          _R(my, g(f"{s}_hip_abd")))
         rot[:, _IDX[f"knee_{s}"]] = _R(X, g(f"{s}_knee"))
         rot[:, _IDX[f"ankle_{s}"]] = _R(X, -g(f"{s}_ankle"))
         rot[:, _IDX[f"toe_{s}"]] = _R(X, -g(f"{s}_toe"))
@@ -577,8 +586,8 @@ def _build(density: float) -> tuple[np.ndarray, ...]:
     bind_local = bind_world.copy()
     for j, p in enumerate(parents):
         if p >= 0:
-            bind_local[j] = np.linalg.solve(bind_world[p], bind_world[j])
-    inverse_bind = np.linalg.inv(bind_world)
+            bind_local[j] = small_matmul(rigid_inverse(bind_world[p]), bind_world[j])
+    inverse_bind = rigid_inverse(bind_world)  # closed form (no LAPACK): the character is the same on every machine
     joints, weights = _skin_weights(verts - np.array([0, 0, dz]), faces, parents, density)
     return parents, bind_local, inverse_bind, verts.astype(np.float32), normals.astype(np.float32), faces, joints, \
         weights

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from prt_torch.errors import PrtError, check
+from prt_torch.exact import small_matmul
 from prt_torch.io import atomic_path, read_npz_with_meta
 from prt_torch.rig.clip import Clip
 from prt_torch.rig.features import pose_features
@@ -176,7 +177,7 @@ class Character:
         if fps is not None and fps != c.fps:
             c = c.resample(fps)
         world = forward_kinematics(self.parents, c.local)
-        skin_mats = world @ self.inverse_bind[None]
+        skin_mats = small_matmul(world, self.inverse_bind[None])  # fixed order: the bake is bit-exact
         feats = pose_features(c.local, self.bind_local, self.parents)
         return Poses(c.name, c.fps, c.local, world, skin_mats, feats)
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.exact import small_matmul
 from prt_torch.rig.rotations import rotation_part
 
 FEATURES_PER_JOINT = 6
@@ -36,7 +37,7 @@ def pose_features(local_rot: np.ndarray, bind_rot: np.ndarray, parents: np.ndarr
     j = local_rot.shape[1]
     check(bind_rot.shape in ((j, 3, 3), (j, 4, 4)), f"bind rotations must be ({j}, 3, 3), got {bind_rot.shape}")
     check(bool(np.all(np.isfinite(local_rot))), "local rotations contain NaN or inf")
-    rel = np.swapaxes(rotation_part(bind_rot), -1, -2)[None] @ rotation_part(local_rot)  # (F, J, 3, 3)
+    rel = small_matmul(np.swapaxes(rotation_part(bind_rot), -1, -2)[None], rotation_part(local_rot))  # (F, J, 3, 3)
     keep = np.ones(j, dtype=bool)
     if exclude_root:
         if parents is None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.exact import small_matmul
 
 #: glTF/BVH (y up) -> library world (z up): ``(x, y, z) -> (x, -z, y)``.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -18,12 +19,12 @@ Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
     """Rotation matrices about ``axis (3,)`` by ``angle (...)`` radians (Rodrigues) -> ``(..., 3, 3)``."""
     axis = np.asarray(axis, dtype=np.float64)
-    axis = axis / np.linalg.norm(axis)
+    axis = axis / np.sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2])  # no BLAS dot
     angle = np.asarray(angle, dtype=np.float64)
     c, s = np.cos(angle)[..., None, None], np.sin(angle)[..., None, None]
     x, y, z = axis
     k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + s * k + (1.0 - c) * (k @ k)
+    return np.eye(3) + s * k + (1.0 - c) * small_matmul(k, k)  # fixed order: feeds the bake
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -106,5 +107,15 @@ def rotation_part(m: np.ndarray) -> np.ndarray:
 
 
 def rigid_inverse(m: np.ndarray) -> np.ndarray:
-    """Inverse of transforms ``(..., 4, 4)`` (general affine inverse via ``np.linalg.inv``)."""
-    return np.linalg.inv(np.asarray(m, dtype=np.float64))
+    """Inverse of rigid transforms ``(..., 4, 4)`` (rotation + translation): ``[R^T | -R^T t]`` in closed form,
+    the same bits on every machine (a transpose and :func:`prt_torch.exact.small_matmul`; no LAPACK)."""
+    m = np.asarray(m, dtype=np.float64)
+    check(m.ndim >= 2 and m.shape[-2:] == (4, 4), f"rigid transforms must be (..., 4, 4), got {m.shape}")
+    rt = np.swapaxes(m[..., :3, :3], -1, -2)
+    check(bool(np.allclose(small_matmul(rt, m[..., :3, :3]), np.eye(3), atol=1e-9)),
+          "rigid_inverse: the rotation part is not orthonormal")
+    out = np.zeros_like(m)
+    out[..., :3, :3] = rt
+    out[..., :3, 3] = -small_matmul(rt, m[..., :3, 3:4])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.exact import small_matmul
 
 
 def check_parents(parents: np.ndarray) -> np.ndarray:
@@ -35,7 +36,8 @@ def forward_kinematics(parents: np.ndarray, local: np.ndarray) -> np.ndarray:
           f"local transforms must be (..., {len(parents)}, 4, 4), got {local.shape}")
     world = np.empty_like(local)
     for j, p in enumerate(parents):
-        world[..., j, :, :] = local[..., j, :, :] if p < 0 else world[..., p, :, :] @ local[..., j, :, :]
+        # fixed-order 4x4 products: FK feeds the bake, which is bit-exact across machines (prt_torch.exact)
+        world[..., j, :, :] = local[..., j, :, :] if p < 0 else small_matmul(world[..., p, :, :], local[..., j, :, :])
     return world
 
 

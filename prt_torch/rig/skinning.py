@@ -2,7 +2,8 @@
 
 ``p'_v = sum_k w_vk S_{j_vk} [p_v; 1]`` with skin matrices ``S_j = world_j @ inverse_bind_j``.
 Implementation: the sparse ``(V, K)`` indices/weights are expanded once into a dense ``(V, J)``
-weight matrix ``W``; per frame the blended ``(V, 3, 4)`` matrices are one GEMM ``W @ S.reshape(J, 12)``.
+weight matrix ``W``; per frame the blended ``(V, 3, 4)`` matrices are one product ``W @ S.reshape(J, 12)``, summed
+over the joints in a fixed order (:func:`prt_torch.exact.fixed_order_matmul`: the bake is bit-exact across machines).
 Normals are the rest normals transformed by the same blended 3x3 block and renormalised (exact
 for rigid joints; the inverse-transpose is not applied, which is the usual LBS approximation and
 exact for rotations and uniform scale).
@@ -10,28 +11,10 @@ exact for rotations and uniform scale).
 
 from __future__ import annotations
 
-import contextlib
-import functools
-from typing import Any
-
 import numpy as np
 
 from prt_torch.errors import check
-
-
-@functools.cache
-def _blas_controller() -> Any:
-    try:
-        from threadpoolctl import ThreadpoolController
-    except ImportError:  # pragma: no cover - threadpoolctl ships with scikit-learn
-        return None
-    return ThreadpoolController()
-
-
-def _single_thread_blas() -> contextlib.AbstractContextManager[Any]:
-    """The skinning GEMM is tiny (12 x J x V): one BLAS thread is 2-20x faster than a contended pool."""
-    ctl = _blas_controller()
-    return contextlib.nullcontext() if ctl is None else ctl.limit(limits=1, user_api="blas")
+from prt_torch.exact import fixed_order_matmul
 
 
 def check_skin_weights(joints: np.ndarray, weights: np.ndarray, num_joints: int, num_vertices: int | None = None,
@@ -86,8 +69,7 @@ def skin(skin_mats: np.ndarray, dense_w: np.ndarray, rest_vertices: np.ndarray,
     f, j = m.shape[:2]
     wt = np.ascontiguousarray(dense_w.T, dtype=np.float32) if dense_w_t is None else dense_w_t
     rows = np.ascontiguousarray(np.swapaxes(m[:, :, :3, :].reshape(f, j, 12), 1, 2), dtype=np.float32)
-    with _single_thread_blas():
-        b = np.matmul(rows, wt)  # (F, 12, V): b[:, 4*r + c] = blended M[r, c]
+    b = fixed_order_matmul(rows, wt)  # (F, 12, V): b[:, 4*r + c] = blended M[r, c], the same bits everywhere
     vt = np.ascontiguousarray(rest_vertices.T, dtype=np.float32)  # (3, V)
     pos = np.empty((f, rest_vertices.shape[0], 3), dtype=np.float32)
     for r in range(3):

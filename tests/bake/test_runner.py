@@ -22,6 +22,7 @@ from prt_torch.config import config_from_dict
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import sh_basis
 from tests.raycast import rays_hit
+from tests.tolerance import assert_bitwise
 
 RESULT_ARRAYS = ("positions", "normals", "frames", "visibility", "done", "pose", "clip_id", "frame_index", "cluster",
                  "cluster_axis", "cluster_bone", "faces")
@@ -46,7 +47,7 @@ def read_all(path: Path) -> dict[str, np.ndarray]:
 def assert_same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
     assert a.keys() == b.keys()
     for k in a:
-        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+        assert_bitwise(a[k], b[k], err_msg=k, why='the bake is bit-exact whatever runs its blocks')
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ from prt_torch.cloth.subject import grid_faces
 from prt_torch.cloth.wind import WindField, triangle_drag
 from prt_torch.config import config_from_dict
 from prt_torch.errors import PrtError
+from tests.tolerance import assert_bitwise
 
 
 @pytest.mark.parametrize(("cloth", "key"), [
@@ -44,7 +45,8 @@ def test_features_flat_sheet_and_appended_pose() -> None:
     assert f.dtype == np.float32 and f.shape == (2, len(edges)) and np.allclose(f, 0.0, atol=1e-6)
     body = np.arange(6, dtype=np.float64).reshape(2, 3)
     g = cloth_features(frames, edges, body)
-    assert g.shape == (2, len(edges) + 3) and np.array_equal(g[:, -3:], body.astype(np.float32))
+    assert g.shape == (2, len(edges) + 3)
+    assert_bitwise(g[:, -3:], body.astype(np.float32), why="the body features are copied into the last columns")
     # fold the sheet 90 degrees along the column x = 2: every edge on the fold line reads +-pi/2, the rest 0
     folded = flat.copy()
     right = flat[:, 0] > 2
@@ -77,5 +79,5 @@ def test_wind_field_mean_and_bounds() -> None:
     v = np.array([w(pts, t)[0] for t in np.linspace(0.0, 200.0, 4001)])
     assert np.allclose(v[:, [0, 2]], 0.0, atol=1e-12)  # blows along +y only
     assert np.all(np.abs(v[:, 1] - 6.0) <= 2.0 + 1e-9) and abs(v[:, 1].mean() - 6.0) < 0.2
-    assert np.array_equal(w(pts, 1.5), WindField.from_pattern(p, seed=0)(pts, 1.5))  # deterministic
+    assert_bitwise(w(pts, 1.5), WindField.from_pattern(p, seed=0)(pts, 1.5), why="the same seeded field twice")
     assert not np.array_equal(w(pts, 1.5), WindField.from_pattern(p, seed=1)(pts, 1.5))

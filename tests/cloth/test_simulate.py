@@ -21,6 +21,7 @@ from prt_torch.cloth.subject import ClothSubject, grid_faces  # noqa: E402
 from prt_torch.config import RunConfig, config_from_dict  # noqa: E402
 from prt_torch.errors import PrtError  # noqa: E402
 from prt_torch.rundir import RunDir  # noqa: E402
+from tests.tolerance import assert_bitwise
 
 FPS = 30.0
 G = 9.81
@@ -56,7 +57,7 @@ def test_deterministic(flag_run: tuple[RunConfig, dict[str, np.ndarray]], tmp_pa
     assert list(first) == ["calm", "gusty", "side"]
     for name, pos in first.items():
         assert pos.dtype == np.float32 and pos.shape[1:] == (96, 3)
-        assert np.array_equal(pos, again[name]), name  # bit-identical
+        assert_bitwise(pos, again[name], err_msg=name, why="MuJoCo's simulation run twice: the same operations")
     assert first["calm"].shape[0] == 4 and first["gusty"].shape[0] == 5 and first["side"].shape[0] == 3
 
 
@@ -94,7 +95,7 @@ def test_resume_skips_done_and_redoes_interrupted(flag_run: tuple[RunConfig, dic
     assert calls == ["gusty", "side"]  # the finished sequence is not simulated again
     resumed = cached(RunDir(cfg.out_dir).simulation)
     for name, pos in reference.items():
-        assert np.array_equal(pos, resumed[name]), name
+        assert_bitwise(pos, resumed[name], err_msg=name, why="a resumed simulation runs the same steps")
     calls.clear()
     S.simulate(cfg, progress=False)
     assert calls == []
@@ -207,8 +208,8 @@ def test_cape_stays_outside_the_body(cape: tuple[ClothSubject, VertexCache]) -> 
         pos = cache.positions(name)
         poses = subject.body_sequence(name).poses
         body, _ = subject.body.skin_mesh(poses)
-        assert np.array_equal(pos[:, : subject.n_body], body)  # the body's skinned vertices first
-        assert np.array_equal(cache.body_features(name), poses.features)
+        assert_bitwise(pos[:, : subject.n_body], body, why="the body's skinned vertices, copied first")
+        assert_bitwise(cache.body_features(name), poses.features, why="the cache stores the features as they are")
         cloth = pos[:, subject.cloth_slice].astype(np.float64)
         a, b = subject.capsules.posed(poses.skin)
         d = capsule_distance(cloth, a, b, subject.capsules.radius)  # (T, N), independent of MuJoCo
@@ -235,4 +236,4 @@ def test_parallel_workers_match_serial(flag_run: tuple[RunConfig, dict[str, np.n
     cfg = flag_cfg(tmp_path / "par", workers=2)
     par = cached(S.simulate(cfg, progress=False))
     for name, pos in serial.items():
-        assert np.array_equal(pos, par[name]), name
+        assert_bitwise(pos, par[name], err_msg=name, why="each sequence simulates alone: parallel runs change nothing")

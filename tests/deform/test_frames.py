@@ -16,6 +16,7 @@ from prt_torch.deform.frames import FrameOperator, frame_coherence, frame_turn
 from prt_torch.errors import PrtError
 from prt_torch.rig.mesh import vertex_normals, vertex_normals_soa
 from tests.deform.sheets import sheet
+from tests.tolerance import assert_bitwise
 
 
 def _soa(x: np.ndarray) -> np.ndarray:
@@ -64,7 +65,7 @@ def test_rest_frames_and_rigid_motion_exact(wavy) -> None:
     fast, nrm = op.frames_soa(_soa(moved))
     assert fast.shape == (3, 9, len(v)) and nrm.shape == (3, 3, len(v)) and fast.dtype == np.float32
     np.testing.assert_allclose(_unsoa(fast), want, atol=2e-4)  # float32 positions up to 4 m from the origin
-    np.testing.assert_array_equal(fast[:, 6:9], nrm)
+    assert_bitwise(fast[:, 6:9], nrm, why="the frames' normal rows are the normals, copied")
 
 
 def test_affine_stretch_gives_the_polar_rotation_exactly() -> None:
@@ -160,8 +161,9 @@ def test_arrays_round_trip_through_npz(wavy, tmp_path) -> None:
     with np.load(tmp_path / "op.npz") as d:
         back = FrameOperator.from_arrays(d)
     pos = v + 0.01 * np.sin(7 * v[:, [1, 2, 0]])
-    np.testing.assert_array_equal(back.frames(pos), op.frames(pos))
-    np.testing.assert_array_equal(back.frames_soa(_soa(pos[None]))[0], op.frames_soa(_soa(pos[None]))[0])
+    assert_bitwise(back.frames(pos), op.frames(pos), why='the same operations on the round-tripped operator')
+    assert_bitwise(back.frames_soa(_soa(pos[None]))[0], op.frames_soa(_soa(pos[None]))[0],
+                   why='the same operations on the round-tripped operator')
     with pytest.raises(PrtError, match="lack"):
         FrameOperator.from_arrays({k: a for k, a in op.arrays().items() if k != "deform_faces"})
 
@@ -197,5 +199,6 @@ def test_long_sequences_equal_frame_by_frame(wavy) -> None:
     v, f, lab = wavy
     op = FrameOperator.from_rest(v, f, lab)
     pos = v[None] + 0.02 * np.random.default_rng(8).normal(size=(CHUNK + 3, *v.shape))
-    np.testing.assert_array_equal(op.frames(pos)[[0, CHUNK - 1, CHUNK, CHUNK + 2]],
-                                  np.concatenate([op.frames(pos[i]) for i in (0, CHUNK - 1, CHUNK, CHUNK + 2)]))
+    assert_bitwise(op.frames(pos)[[0, CHUNK - 1, CHUNK, CHUNK + 2]],
+                   np.concatenate([op.frames(pos[i]) for i in (0, CHUNK - 1, CHUNK, CHUNK + 2)]),
+                   why="per-element arithmetic (CSR rows in nonzero order, elementwise ops): chunks split frames only")

@@ -31,6 +31,7 @@ from prt_torch.export.onnx_file import export_onnx, initializer_bytes
 from prt_torch.export.run import lowering
 from prt_torch.models.visibility import load_model
 from prt_torch.runtime.session import OrtGraph
+from tests.tolerance import two_path_atol
 
 #: stated error of each precision against the float32 model: max |v - v_fp32| / max |v_fp32| on held-out poses
 STATED_REL = {"fp32": 1e-5, "fp16": 2e-3, "int8": 1e-2}
@@ -140,7 +141,10 @@ def test_cluster_sorted_export_reproduces_original_order(tiny_run: Path, tmp_pat
     b = b_ort.run({"pose": pose})["visibility"]  # (B, C, V) vertex-last, sorted
     back = np.empty_like(a)
     back[:, order] = b.transpose(0, 2, 1)
-    np.testing.assert_array_equal(back, a)
+    # two graphs (gathers folded, vertex-last): onnxruntime may run their GEMMs with other kernels; each value is
+    # a chain of A (pose) + 128 (hidden and PCA widths of the tiny model) float32 roundings of terms bounded by
+    # 4 max|visibility|
+    np.testing.assert_allclose(back, a, rtol=0, atol=two_path_atol(model.n_features + 128, 4 * np.abs(a).max()))
     # the fused graph: sorted inputs, radiance put back == the original-order fused graph's
     rng = np.random.default_rng(1)
     fr = rng.standard_normal((3, 9, v)).astype(np.float32)

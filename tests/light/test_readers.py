@@ -11,6 +11,7 @@ import pytest
 from prt_torch.errors import PrtError
 from prt_torch.light.envmap import load_envmap
 from prt_torch.light.readers import read_hdr_image, read_pfm, write_pfm
+from tests.tolerance import assert_bitwise
 
 
 def _decode_rgbe(path: Path) -> np.ndarray:
@@ -87,15 +88,16 @@ def test_exr_rgb_half_and_luminance(tmp_path: Path) -> None:
     p = tmp_path / "rgb.exr"
     with OpenEXR.File(header, {c: np.ascontiguousarray(img[..., i]) for i, c in enumerate("RGB")}) as f:
         f.write(str(p))
-    np.testing.assert_array_equal(read_hdr_image(p), img)
+    assert_bitwise(read_hdr_image(p), img, why='file round trip of float32 values')
     ph = tmp_path / "half.exr"
     with OpenEXR.File(header, {"RGB": img.astype(np.float16)}) as f:
         f.write(str(ph))
-    np.testing.assert_array_equal(read_hdr_image(ph), img.astype(np.float16).astype(np.float32))
+    assert_bitwise(read_hdr_image(ph), img.astype(np.float16).astype(np.float32),
+                   why='file round trip of float16 values')
     py = tmp_path / "y.exr"
     with OpenEXR.File(header, {"Y": np.ascontiguousarray(img[..., 0])}) as f:
         f.write(str(py))
-    np.testing.assert_array_equal(read_hdr_image(py), np.repeat(img[..., :1], 3, axis=2))
+    assert_bitwise(read_hdr_image(py), np.repeat(img[..., :1], 3, axis=2), why='file round trip of float32 values')
 
 
 @pytest.mark.parametrize("little", [True, False])
@@ -106,13 +108,13 @@ def test_pfm_hand_written_file(tmp_path: Path, little: bool) -> None:
     body = np.ascontiguousarray(img[::-1], dtype="<f4" if little else ">f4").tobytes()
     p = tmp_path / "a.pfm"
     p.write_bytes(f"PF\n{w} {h}\n{-1.0 if little else 1.0}\n".encode() + body)
-    np.testing.assert_array_equal(read_pfm(p), img)
+    assert_bitwise(read_pfm(p), img, why='file round trip of float32 values')
     q = tmp_path / "b.pfm"
     write_pfm(q, img, little_endian=little)
     assert q.read_bytes() == p.read_bytes()
     g = tmp_path / "g.pfm"
     g.write_bytes(f"Pf\n{w} {h}\n-1.0\n".encode() + np.ascontiguousarray(img[::-1, :, 1], dtype="<f4").tobytes())
-    np.testing.assert_array_equal(read_pfm(g), np.repeat(img[..., 1:2], 3, axis=2))
+    assert_bitwise(read_pfm(g), np.repeat(img[..., 1:2], 3, axis=2), why='file round trip of float32 values')
 
 
 def test_bad_files(tmp_path: Path) -> None:

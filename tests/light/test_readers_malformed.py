@@ -20,6 +20,7 @@ from prt_torch.errors import PrtError, PrtWarning
 from prt_torch.light.envmap import load_envmap
 from prt_torch.light.readers import MAX_IMAGE_BYTES, read_hdr_image, read_pfm, write_pfm
 from tests.rig.test_gltf_malformed import time_limit
+from tests.tolerance import assert_bitwise
 
 
 def _image(h: int = 8, w: int = 16) -> np.ndarray:
@@ -165,11 +166,11 @@ def test_negative_radiance_is_clamped_with_one_warning(tmp_path: Path, suffix: s
     assert [str(w.message) for w in record] == [
         f"neg{suffix}: clamped negative radiance to 0 in 3 of 128 pixel(s) (lowest value -2)"]
     # exact: the float32 pixels written and read back, clamped by the same maximum
-    np.testing.assert_allclose(got, np.maximum(img, 0.0), rtol=0, atol=0)
+    assert_bitwise(got, np.maximum(img, 0.0), why="clamping is exact: the positive pixels are copied")
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a map without negative pixels reads without a warning
         write_pfm(tmp_path / "pos.pfm", np.maximum(img, 0.0))
-        np.testing.assert_allclose(read_hdr_image(tmp_path / "pos.pfm"), got, rtol=0, atol=0)  # the same pixels
+        assert_bitwise(read_hdr_image(tmp_path / "pos.pfm"), got, why="file round trip of the same pixels")
 
 
 @pytest.mark.parametrize("suffix, cut", [(".exr", 300), (".hdr", 200), (".exr", 0.8)])

@@ -13,6 +13,7 @@ from prt_torch.models.posespace import (
     segment_bone_weights,
     segment_rotations,
 )
+from tests.tolerance import assert_bitwise
 
 
 def _space(p: int = 24, joints: int = 3, k: int = 2, seed: int = 0) -> PoseSpace:
@@ -31,7 +32,8 @@ def test_nrbf_reproduces_sampled_poses_exactly() -> None:
         idx, alpha = sp.segment_neighbours(sp.poses[j])
         assert np.all(alpha[idx == j] == 1.0) and np.all(alpha[idx != j] == 0.0)
         lam = interpolate_coefficients(coeffs, idx[seg], alpha[seg])
-        np.testing.assert_array_equal(lam, coeffs[j])
+        assert_bitwise(lam, coeffs[j],
+                       why="weights exactly one-hot (1.0 and 0.0): the sampled pose's coefficients, copied")
         gi, ga = sp.global_neighbours(sp.poses[j])
         assert gi[np.argmax(ga)] == j and ga.max() == 1.0
 

@@ -16,6 +16,7 @@ from scipy import ndimage
 from prt_torch.errors import PrtError
 from prt_torch.player import Player
 from prt_torch.rig.material import DEFAULT_MATERIAL, Material, srgb_to_linear
+from tests.tolerance import assert_bitwise
 
 SIZE = (240, 320)  # (H, W) of the test renders
 BACKGROUND = np.array([0.08, 0.08, 0.1])  # MeshRenderer's default
@@ -185,7 +186,7 @@ def test_material_rpo_is_cook_torrance_and_cached_in_the_run(textured_run: Path,
     monkeypatch.setattr(rpo_mod, "build_rpo", no_build)
     p = Player(textured_run, threads=1, graph="split", window_size=SIZE, brdf="material")
     try:
-        np.testing.assert_array_equal(p.rpo.M, M)
+        assert_bitwise(p.rpo.M, M, why='the cached RPO read back')
     finally:
         p.close()
 
@@ -205,7 +206,8 @@ def test_builtin_character_default_material(tiny_run: Path, tmp_path: Path) -> N
         assert vertex_base_color(p.character) is None and surface_texture(p.character) is None
         assert p.rpo.name == p.bundle.brdf_names[0] and brdf_names(p.bundle)[-1] == "material"
         state, rad = _frame(p)
-        np.testing.assert_array_equal(p.colors(rad[0]), p.exposure(rad[0]))  # white: unchanged
+        assert_bitwise(p.colors(rad[0]), p.exposure(rad[0]),
+                       why='a white base colour multiplies by 1.0, which is exact')  # white: unchanged
         mat = select_rpo(p.bundle, "material")
         with pytest.raises(PrtError, match="unknown BRDF 'nope'.*'material'"):
             select_rpo(p.bundle, "nope")

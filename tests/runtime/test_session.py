@@ -9,6 +9,7 @@ from onnx import TensorProto, helper
 
 from prt_torch.errors import PrtError
 from prt_torch.runtime.session import OrtGraph
+from tests.tolerance import assert_bitwise
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +41,8 @@ def test_run_matches_numpy_and_reads_metadata(matmul_onnx) -> None:
     out = g.run({"x": x, "b": b})["out"]
     np.testing.assert_allclose(out, x @ w + 1, rtol=1e-5, atol=1e-5)
     fast = g.run_unchecked({"x": x.astype(np.float32), "b": b.astype(np.float32)})[0]
-    np.testing.assert_array_equal(fast, out)
+    assert_bitwise(fast, out,
+                   why='the same graph and session on the same float32 values (the checked path casts them first)')
 
 
 def test_bad_inputs_raise_one_line_errors(matmul_onnx) -> None:
@@ -97,3 +99,19 @@ def test_cuda_matches_numpy(matmul_onnx) -> None:
     feeds = {n: np.random.default_rng(0).standard_normal([d if isinstance(d, int) else 3 for d in s])
              .astype(np.float32) for n, s in c.inputs.items()}
     np.testing.assert_allclose(g.run(feeds)["out"], feeds["x"] @ w + feeds["b"], rtol=1e-4, atol=1e-5)
+
+
+def test_ort_threads_are_capped_by_the_environment(matmul_onnx, monkeypatch) -> None:
+    from prt_torch.runtime.session import THREADS_ENV, session_threads
+
+    path, _ = matmul_onnx
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    assert session_threads(2) == 2 and OrtGraph(path, threads=2).threads == 2
+    monkeypatch.setenv(THREADS_ENV, "1")
+    assert session_threads(2) == 1 and OrtGraph(path, threads=2).threads == 1
+    monkeypatch.setenv(THREADS_ENV, "4")
+    assert session_threads(2) == 2  # a cap, never more than the caller asked for
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv(THREADS_ENV, bad)
+        with pytest.raises(PrtError, match=THREADS_ENV):
+            session_threads(2)

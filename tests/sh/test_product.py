@@ -25,6 +25,7 @@ from prt_torch.errors import PrtError
 from prt_torch.sh.basis import sh_basis, sh_index
 from prt_torch.sh.product import gaunt_tensor, product_matrix, sh_product
 from prt_torch.sh.quadrature import sphere_quadrature
+from tests.tolerance import assert_bitwise
 
 
 def _lm(order: int) -> list[tuple[int, int]]:
@@ -96,11 +97,12 @@ def test_gaunt_basic_properties() -> None:
     # Gamma_{0jk} = delta_jk / (2 sqrt(pi))
     np.testing.assert_allclose(g[0], np.eye(64) / (2 * math.sqrt(math.pi)), atol=1e-14)
     for p in [(1, 0, 2), (2, 1, 0), (0, 2, 1)]:
-        np.testing.assert_array_equal(g, g.transpose(p))
+        assert_bitwise(g, g.transpose(p),
+                       why='the tensor is symmetrised by construction: each value is stored once and copied')
     # COO round-trip and sparsity
     dense = np.zeros_like(g)
     dense[tuple(t.indices.T)] = t.values
-    np.testing.assert_array_equal(dense, g)
+    assert_bitwise(dense, g, why='COO round trip of the same values')
     assert t.nnz < 0.1 * g.size
     # cached
     assert gaunt_tensor(8) is t
@@ -132,7 +134,7 @@ def test_torch_views() -> None:
     assert d.dtype == torch.float32 and d.shape == (9, 9, 9)
     s = t.torch(sparse=True)
     assert s.is_sparse and s.dtype == torch.float64
-    np.testing.assert_array_equal(s.to_dense().numpy(), t.dense())
+    assert_bitwise(s.to_dense().numpy(), t.dense(), why='a dense view of the same values')
 
 
 def _quadrature_product(a: np.ndarray, b: np.ndarray, order: int) -> np.ndarray:
@@ -212,6 +214,6 @@ def test_mask_below_horizon_is_the_projection_of_the_masked_function(below: str)
     masked = h_n * f if below == "zero" else 1.0 - h_n * (1.0 - f)
     want = (masked * w) @ y
     np.testing.assert_allclose(mask_below_horizon(v, order, below), want, atol=1e-6 * np.abs(want).max())
-    np.testing.assert_array_equal(mask_below_horizon(v, order, None), v)
+    assert_bitwise(mask_below_horizon(v, order, None), v, why='no mask: the input is returned unchanged')
     with pytest.raises(PrtError, match="below_horizon"):
         mask_below_horizon(v, order, "half")
