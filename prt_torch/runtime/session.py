@@ -27,8 +27,23 @@ _ORT_TYPES = {"tensor(float)": np.float32, "tensor(double)": np.float64, "tensor
               "tensor(int32)": np.int32, "tensor(bool)": np.bool_}
 
 
+#: caps every session's intra-op threads (a small machine, or the suite's 1-thread configuration)
+THREADS_ENV = "PRT_ORT_THREADS"
+
+
+def session_threads(threads: int) -> int:
+    """``threads``, capped by ``$PRT_ORT_THREADS`` when it is set (a positive integer; else a one-line error)."""
+    cap = os.environ.get(THREADS_ENV, "").strip()
+    if not cap:
+        return max(1, int(threads))
+    if not cap.isdigit() or int(cap) < 1:
+        raise PrtError(f"{THREADS_ENV}={cap!r}: expected a positive integer")
+    return max(1, min(int(threads), int(cap)))
+
+
 def session_options(threads: int = 2, spinning: bool = False):  # -> onnxruntime.SessionOptions
-    """Session options tuned for the per-frame loop on a few CPU cores.
+    """Session options tuned for the per-frame loop on a few CPU cores (``threads`` capped by
+    :func:`session_threads`).
 
     ``spinning=False`` stops idle intra-op threads from busy-waiting: on 2 cores the numpy half of
     each frame (posing) and other processes then get the CPU (measured several times faster under load).
@@ -36,7 +51,7 @@ def session_options(threads: int = 2, spinning: bool = False):  # -> onnxruntime
     import onnxruntime as ort
 
     so = ort.SessionOptions()
-    so.intra_op_num_threads = max(1, int(threads))
+    so.intra_op_num_threads = session_threads(threads)
     so.inter_op_num_threads = 1
     so.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
@@ -86,7 +101,7 @@ class OrtGraph:
         import onnxruntime as ort
 
         self.path = Path(path)
-        self.threads = max(1, int(threads))  # onnxruntime intra-op threads of this session
+        self.threads = session_threads(threads)  # onnxruntime intra-op threads of this session
         if not self.path.is_file():
             raise PrtError(f"ONNX file not found: {self.path}")
         providers = providers_for(device)
