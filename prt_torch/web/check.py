@@ -20,6 +20,7 @@ import base64
 import os
 import shutil
 import statistics
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -78,20 +79,46 @@ class PageSession:
         return np.ascontiguousarray(rgba[::-1, :, :3]), stats
 
 
+class _Driver:
+    """One Playwright driver per thread, shared by every :class:`Browser` of that thread (reference-counted).
+
+    Playwright's sync API runs its event loop inside the calling thread: a second ``sync_playwright().start()``
+    while one is alive fails ("Sync API inside the asyncio loop"), so two browsers open at once - a caller's and
+    ``prt web --check``'s own - must share it."""
+
+    _local = threading.local()
+
+    @classmethod
+    def acquire(cls) -> Any:
+        st = cls._local.__dict__
+        if st.get("users", 0) == 0:
+            try:
+                from playwright.sync_api import sync_playwright
+            except ImportError:
+                raise PrtError("the `playwright` Python package is missing: pip install -e '.[dev]'") from None
+            st["pw"] = sync_playwright().start()
+        st["users"] = st.get("users", 0) + 1
+        return st["pw"]
+
+    @classmethod
+    def release(cls) -> None:
+        st = cls._local.__dict__
+        st["users"] -= 1
+        if st["users"] == 0:
+            pw = st.pop("pw")
+            pw.stop()
+
+
 class Browser:
     """Headless Chromium through Playwright (one browser; pages opened with :meth:`open`)."""
 
     def __init__(self, chromium: str | None = None) -> None:
-        try:
-            from playwright.sync_api import sync_playwright
-        except ImportError:
-            raise PrtError("the `playwright` Python package is missing: pip install -e '.[dev]'") from None
-        self._pw = sync_playwright().start()
+        self._pw = _Driver.acquire()
         try:
             self.browser = self._pw.chromium.launch(executable_path=find_chromium(chromium), args=list(CHROMIUM_FLAGS),
                                                     headless=True)
         except Exception:
-            self._pw.stop()
+            _Driver.release()
             raise
 
     def open(self, url: str, width: int = 1100, height: int = 560) -> PageSession:
@@ -106,7 +133,7 @@ class Browser:
         try:
             self.browser.close()
         finally:
-            self._pw.stop()
+            _Driver.release()
 
 
 @contextmanager

@@ -20,3 +20,23 @@ def test_check_reports_page_equal_to_python_player(checked_site: tuple[Path, dic
     assert result["visibility_rel_err"] <= 1e-4
     assert result["ms_per_frame"] > 0 and result["ok"] is True
     assert len({f["brdf"] for f in result["frames"]}) == 2  # the second case swaps the BRDF and turns the light
+
+
+def test_two_browsers_at_once_share_one_playwright_driver(chromium: str, browser) -> None:
+    """A caller's browser and ``prt web --check``'s own are open at once in one thread (they failed with 'Sync API
+    inside the asyncio loop' in that order); closing the second leaves the first usable."""
+    from prt_torch.web.check import Browser
+
+    second = Browser(chromium)
+    try:
+        for b in (browser, second):
+            page = b.browser.new_page()
+            page.set_content("<p id='x'>prt</p>")
+            assert page.inner_text("#x") == "prt"
+            page.close()
+    finally:
+        second.close()
+    page = browser.browser.new_page()
+    page.set_content("<p id='x'>still</p>")
+    assert page.inner_text("#x") == "still"
+    page.close()
