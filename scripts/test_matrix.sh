@@ -14,7 +14,8 @@
 #   threads-2       two of each
 #   shuffled        test order shuffled by pytest-randomly (seed printed; PRT_TEST_SEED=N repeats one)
 #   twice           the suite twice in a row in the same clone: the second run must pass and the clone stay clean
-#   pairwise        = coretype-set + threads-1 + shuffled, then coretype-unset + threads-2 + twice
+#   mixed           coretype-set + threads-1 + shuffled, in one run
+#   pairwise        = mixed, then coretype-unset + threads-2 + twice
 set -uo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh >/dev/null || { echo "test_matrix: setup failed"; exit 1; }
@@ -60,6 +61,11 @@ twice() {  # ENV...: the suite twice; nothing the first run leaves may change th
     fi
 }
 
+mixed() {
+    run_suite "coretype-set + threads-1 + shuffled (seed $seed)" "${set_coretype[@]}" "${one[@]}" -- \
+        "--randomly-seed=$seed"
+}
+
 for c in "${configs[@]}"; do
     case $c in
         ci) run_suite ci -- -p no:randomly ;;
@@ -69,11 +75,9 @@ for c in "${configs[@]}"; do
         threads-2) run_suite threads-2 "${two[@]}" -- -p no:randomly ;;
         shuffled) run_suite "shuffled (seed $seed)" -- "--randomly-seed=$seed" ;;
         twice) twice ;;
-        pairwise)
-            run_suite "coretype-set + threads-1 + shuffled (seed $seed)" "${set_coretype[@]}" "${one[@]}" -- \
-                "--randomly-seed=$seed"
-            twice "${unset_coretype[@]}" "${two[@]}" ;;
-        *) echo "test_matrix: unknown configuration '$c' (expected: ${ALL[*]} pairwise)"; exit 2 ;;
+        mixed) mixed ;;
+        pairwise) mixed; twice "${unset_coretype[@]}" "${two[@]}" ;;
+        *) echo "test_matrix: unknown configuration '$c' (expected: ${ALL[*]} mixed pairwise)"; exit 2 ;;
     esac
 done
 printf '%s\n' "${summary[@]}"
