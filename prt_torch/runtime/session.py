@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 #: onnx tensor type string -> numpy dtype
 _ORT_TYPES = {"tensor(float)": np.float32, "tensor(double)": np.float64, "tensor(int64)": np.int64,
@@ -132,23 +133,11 @@ class OrtGraph:
         unknown = [n for n in feeds if n not in self.inputs]
         if unknown:
             raise PrtError(f"{self.path.name}: unknown input(s) {', '.join(unknown)}; expected {list(self.inputs)}")
-        symbols: dict[str, tuple[int, str]] = {}
+        symbols: dict[str, int] = {}
         out: dict[str, np.ndarray] = {}
         for name, shape in self.inputs.items():
             a = np.asarray(feeds[name])
-            if a.ndim != len(shape):
-                raise PrtError(f"{self.path.name}: input '{name}' must have {len(shape)} dims {_fmt(shape)}, "
-                               f"got shape {a.shape}")
-            for ax, (want, got) in enumerate(zip(shape, a.shape, strict=True)):
-                if isinstance(want, int) and want >= 0:
-                    if want != got:
-                        raise PrtError(f"{self.path.name}: input '{name}' axis {ax} must be {want} {_fmt(shape)}, "
-                                       f"got shape {a.shape}")
-                else:
-                    prev = symbols.setdefault(want, (got, name))
-                    if prev[0] != got:
-                        raise PrtError(f"{self.path.name}: axis '{want}' is {prev[0]} in '{prev[1]}' but {got} "
-                                       f"in '{name}'")
+            check_shape(a, shape, name=f"{self.path.name}: input '{name}'", dims=symbols)
             dtype = self.input_types[name]
             a = np.ascontiguousarray(a, dtype=dtype)
             if np.issubdtype(dtype, np.floating) and not np.isfinite(a).all():
@@ -164,7 +153,3 @@ class OrtGraph:
     def run_unchecked(self, feeds: Mapping[str, np.ndarray]) -> list[np.ndarray]:
         """The per-frame fast path: float32 contiguous inputs assumed; outputs in graph order."""
         return self.session.run(self.outputs, feeds)
-
-
-def _fmt(shape: tuple[int | str, ...]) -> str:
-    return "(" + ", ".join(str(d) for d in shape) + ")"
