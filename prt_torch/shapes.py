@@ -11,7 +11,8 @@ Spec tokens (a whitespace- or comma-separated string, or a sequence of ``int`` /
 * a name (``B``, ``V``, ``Frames``): a symbolic size, bound on first use; every later use, in the same call or
   in another call given the same ``dims`` dict, must agree;
 * ``_``: any size;
-* ``*`` (at most once): any number of axes there (``"* 3"``: at least one axis, the last of size 3).
+* ``*`` or ``...`` (at most once): any number of axes there (``"* 3"``: at least one axis, the last of size 3);
+  messages write it ``...``.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ def _tokens(spec: str | Sequence[int | str]) -> list[int | str]:
     raw = spec.replace(",", " ").split() if isinstance(spec, str) else list(spec)
     out: list[int | str] = []
     for t in raw:
+        if t == "...":
+            t = "*"
         if isinstance(t, int) and not isinstance(t, bool):
             out.append(t)
         elif isinstance(t, str) and t.lstrip("-").isdigit():
@@ -43,7 +46,7 @@ def _tokens(spec: str | Sequence[int | str]) -> list[int | str]:
 
 
 def _fmt(items: Sequence[Any]) -> str:
-    return "(" + ", ".join(str(i) for i in items) + ("," if len(items) == 1 else "") + ")"
+    return "(" + ", ".join("..." if i == "*" else str(i) for i in items) + ("," if len(items) == 1 else "") + ")"
 
 
 def check_shape(x: Any, spec: str | Sequence[int | str], name: str = "array",

@@ -26,6 +26,7 @@ from prt_torch.shapes import check_shape
     ((2, 6, 3), "* 3", {}),
     ((2, 6, 3), "B *", {"B": 2}),
     ((2, 6, 9, 3), "B * 3", {"B": 2}),
+    ((2, 6, 9, 3), "B ... 3", {"B": 2}),
     ((), "", {}),
     ((5, 3), ("V", -1), {"V": 5}),
 ])
@@ -39,8 +40,8 @@ def test_matching_shapes_return_the_symbols(make, shape, spec, dims) -> None:
     ((2, 5), "B V 3", "positions must have shape (B, V, 3), got (2, 5): must have 3 dims"),
     ((2, 5, 3, 1), "B V 3", "positions must have shape (B, V, 3), got (2, 5, 3, 1): must have 3 dims"),
     ((4, 5), "N N", "positions must have shape (N, N), got (4, 5): axis 'N' is 5 at axis 1 but 4 at axis 0"),
-    ((), "* 3", "positions must have shape (*, 3), got (): must have at least 1 dims"),
-    ((2, 4), "* 3", "positions must have shape (*, 3), got (2, 4): axis 1 must be 3"),
+    ((), "* 3", "positions must have shape (..., 3), got (): must have at least 1 dims"),
+    ((2, 4), "* 3", "positions must have shape (..., 3), got (2, 4): axis 1 must be 3"),
     ((5,), "3", "positions must have shape (3,), got (5,): axis 0 must be 3"),
 ])
 def test_mismatches_raise_one_line(make, shape, spec, message) -> None:
@@ -65,7 +66,7 @@ def test_not_an_array() -> None:
         check_shape([1, 2, 3], "3", name="x")
 
 
-@pytest.mark.parametrize("spec", ["B * * 3", "B 3.5", "B-1"])
+@pytest.mark.parametrize("spec", ["B * * 3", "B * ... 3", "B 3.5", "B-1"])
 def test_bad_specs_are_programming_errors(spec) -> None:
     with pytest.raises(ValueError) as exc:
         check_shape(np.zeros((1, 2, 3)), spec)

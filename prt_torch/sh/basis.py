@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:  # torch is imported lazily: the run-time player evaluates SH with numpy alone
     import torch
@@ -98,8 +99,7 @@ def check_directions(dirs: Any, name: str = "directions", atol: float | None = N
     The unit-length tolerance is 1e-3 for 32-bit (and narrower) floats, 1e-8 for float64.
     """
     a = check_float_array(dirs, name, finite=False)
-    if dirs.ndim < 1 or dirs.shape[-1] != 3:
-        raise PrtError(f"{name} must have shape (..., 3), got {tuple(dirs.shape)}")
+    check_shape(dirs, "... 3", name=name)
     if a.size == 0:
         return
     if not np.isfinite(a).all():

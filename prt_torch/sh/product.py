@@ -44,6 +44,7 @@ import numpy as np
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import _is_torch, band_of, check_float_array, check_order, order_from_coeffs, sh_basis
 from prt_torch.sh.quadrature import gauss_product_rule
+from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
     import torch
@@ -144,8 +145,7 @@ def gaunt_tensor(order: int) -> GauntTensor:
 def _check_coeffs(a: Any, name: str) -> int:
     """Validate ``(..., C)`` finite float coefficients (numpy or torch); return the order."""
     arr = check_float_array(a, name, finite=False)
-    if a.ndim < 1:
-        raise PrtError(f"{name} must have shape (..., C) with C = n*n, got {tuple(a.shape)}")
+    check_shape(a, "... C", name=name)
     try:
         order = order_from_coeffs(int(a.shape[-1]))
     except PrtError:

@@ -16,6 +16,7 @@ import numpy as np
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import _is_torch, check_directions, check_float_array, check_order, order_from_coeffs, sh_basis
+from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
     import torch
@@ -42,13 +43,9 @@ def project(values: Array, dirs: Array, weights: Array, order: int, check: bool 
         check_float_array(values, "values")
         check_float_array(weights, "weights")
         check_directions(dirs, "projection directions")
-        if dirs.ndim != 2:
-            raise PrtError(f"projection directions must have shape (N, 3), got {tuple(dirs.shape)}")
-        n = dirs.shape[0]
-        if values.ndim < 1 or values.shape[0] != n:
-            raise PrtError(f"values must have shape (N, ...) with N = {n} directions, got {tuple(values.shape)}")
-        if tuple(weights.shape) != (n,):
-            raise PrtError(f"weights must have shape ({n},), got {tuple(weights.shape)}")
+        dims = check_shape(dirs, "N 3", name="projection directions")
+        check_shape(values, "N ...", name="values", dims=dims)
+        check_shape(weights, "N", name="weights", dims=dims)
         if len({_is_torch(values), _is_torch(dirs), _is_torch(weights)}) != 1:
             raise PrtError("values, dirs and weights must be all numpy or all torch")
     y = sh_basis(dirs, order, check=False)  # (N, C)
@@ -73,11 +70,9 @@ def reconstruct(coeffs: Array, dirs: Array, check: bool = True) -> Array:
     """
     if check:
         check_float_array(coeffs, "SH coefficients")
-        if coeffs.ndim < 1:
-            raise PrtError(f"SH coefficients must have shape (..., C), got {tuple(coeffs.shape)}")
+        check_shape(coeffs, "... C", name="SH coefficients")
         check_directions(dirs, "reconstruction directions")
-        if dirs.ndim != 2:
-            raise PrtError(f"reconstruction directions must have shape (N, 3), got {tuple(dirs.shape)}")
+        check_shape(dirs, "N 3", name="reconstruction directions")
         if _is_torch(coeffs) != _is_torch(dirs):
             raise PrtError("coeffs and dirs must be both numpy or both torch")
     order = order_from_coeffs(int(coeffs.shape[-1]))
@@ -91,8 +86,7 @@ def evaluate(coeffs: Array, dirs: Array, check: bool = True) -> Array:
     """Inverse of :func:`project` in layout: ``coeffs (C, ...)`` -> values ``(N, ...)`` at ``dirs (N, 3)``."""
     if check:
         check_float_array(coeffs, "SH coefficients")
-        if coeffs.ndim < 1:
-            raise PrtError(f"SH coefficients must have shape (C, ...), got {tuple(coeffs.shape)}")
+        check_shape(coeffs, "C ...", name="SH coefficients")
     c = coeffs.shape[0]
     flat = coeffs.reshape(c, -1)
     out = reconstruct(flat.T, dirs, check=check)  # (P, N)

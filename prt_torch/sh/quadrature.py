@@ -22,6 +22,7 @@ from scipy.integrate import lebedev_rule
 from scipy.spatial.transform import Rotation
 
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 #: Degrees (algebraic exactness) tabulated by ``scipy.integrate.lebedev_rule``.
 LEBEDEV_DEGREES = (3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31, 35,
@@ -151,8 +152,7 @@ def random_rotations(n: int, seed: int | None = None) -> np.ndarray:
 def rotations_about_z(angles: np.ndarray) -> np.ndarray:
     """Right-handed rotations by ``angles`` (radians) about ``+z``: ``(n,)`` -> ``(n, 3, 3)`` float64."""
     a = np.asarray(angles, dtype=np.float64)
-    if a.ndim != 1:
-        raise PrtError(f"angles must have shape (n,), got {a.shape}")
+    check_shape(a, "n", name="angles")
     if not np.isfinite(a).all():
         raise PrtError("angles contain NaN or Inf")
     c, s = np.cos(a), np.sin(a)

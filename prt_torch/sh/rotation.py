@@ -23,6 +23,7 @@ import numpy as np
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import _is_torch, check_order
+from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
     import torch
@@ -105,8 +106,7 @@ def _band_terms(l: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
 def _check_rotation(R: Any) -> None:
     if not (isinstance(R, np.ndarray) or _is_torch(R)):
         raise PrtError(f"rotation must be a numpy array or torch tensor, got {type(R).__name__}")
-    if R.ndim < 2 or tuple(R.shape[-2:]) != (3, 3):
-        raise PrtError(f"rotation must have shape (..., 3, 3), got {tuple(R.shape)}")
+    check_shape(R, "... 3 3", name="rotation")
     a = R.detach().cpu().numpy() if _is_torch(R) else R
     if not np.issubdtype(a.dtype, np.floating):
         raise PrtError(f"rotation must be floating point, got {R.dtype}")

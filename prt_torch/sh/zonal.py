@@ -38,6 +38,7 @@ from prt_torch.sh.basis import (
     order_from_coeffs,
     sh_basis,
 )
+from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
     import torch
@@ -64,8 +65,7 @@ def zh_band_scale(order: int) -> np.ndarray:
 def zh_from_axial(z: Array) -> Array:
     """Axis-aligned ZH coefficients ``z (..., n)`` (``y_l0`` coefficients about ``+z``) -> ``g (..., n)``."""
     check_float_array(z, "axial ZH coefficients")
-    if z.ndim < 1:
-        raise PrtError(f"axial ZH coefficients must have shape (..., n), got {tuple(z.shape)}")
+    check_shape(z, "... n", name="axial ZH coefficients")
     order = int(z.shape[-1])
     check_order(order)
     return z * _as_backend(zh_band_scale(order), z)
@@ -74,8 +74,7 @@ def zh_from_axial(z: Array) -> Array:
 def zh_to_axial(g: Array) -> Array:
     """Inverse of :func:`zh_from_axial`: ``g (..., n)`` -> axis-aligned ``z (..., n)``."""
     check_float_array(g, "ZH coefficients")
-    if g.ndim < 1:
-        raise PrtError(f"ZH coefficients must have shape (..., n), got {tuple(g.shape)}")
+    check_shape(g, "... n", name="ZH coefficients")
     order = int(g.shape[-1])
     check_order(order)
     return g / _as_backend(zh_band_scale(order), g)
@@ -96,8 +95,7 @@ def zh_to_sh(g: Array, axis: Array, check: bool = True) -> Array:
     """
     if check:
         check_float_array(g, "ZH coefficients")
-        if g.ndim < 1:
-            raise PrtError(f"ZH coefficients must have shape (..., n), got {tuple(g.shape)}")
+        check_shape(g, "... n", name="ZH coefficients")
         check_order(int(g.shape[-1]))
         check_directions(axis, "ZH axis")
         if _is_torch(g) != _is_torch(axis):
@@ -133,9 +131,9 @@ def lobes_to_sh(dirs: Array, coeffs: Array, check: bool = True) -> Array:
     Returns:
         ``(..., n*n, ch)`` SH coefficients (coefficient axis before the channel axis, like lighting).
     """
-    if check and (coeffs.ndim < 3 or dirs.ndim < 2 or coeffs.shape[-3] != dirs.shape[-2]):
-        raise PrtError(f"lobe coeffs must be (..., K, n, ch) with dirs (..., K, 3); got {tuple(coeffs.shape)}, "
-                       f"{tuple(dirs.shape)}")
+    if check:
+        dims = check_shape(coeffs, "... K n ch", name="lobe coeffs")
+        check_shape(dirs, "... K _", name="lobe coeffs' directions", dims=dims)
     g = coeffs.swapaxes(-1, -2) if not _is_torch(coeffs) else coeffs.transpose(-1, -2)  # (..., K, ch, n)
     f = zh_to_sh(g, dirs[..., :, None, :], check=check)  # (..., K, ch, C)
     f = f.sum(-3)  # (..., ch, C)
@@ -232,8 +230,7 @@ def irradiance_sh(light: Array) -> Array:
         unit environment gives ``E = pi`` everywhere.
     """
     check_float_array(light, "SH lighting")
-    if light.ndim < 1:
-        raise PrtError(f"SH lighting must have shape (C, ...), got {tuple(light.shape)}")
+    check_shape(light, "C ...", name="SH lighting")
     try:
         order = order_from_coeffs(int(light.shape[0]))
     except PrtError:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 
 def shade_diffuse_prt(t: torch.Tensor, l: torch.Tensor, albedo: torch.Tensor | None = None,
@@ -28,9 +29,7 @@ def shade_diffuse_prt(t: torch.Tensor, l: torch.Tensor, albedo: torch.Tensor | N
                 raise PrtError(f"{name} must be a torch tensor, got {type(x).__name__}")
             if not torch.isfinite(x).all():
                 raise PrtError(f"{name} contain NaN or Inf")
-        if t.ndim < 2:
-            raise PrtError(f"transfer must have shape (..., V, C), got {tuple(t.shape)}")
-        if l.ndim != 2 or l.shape != (t.shape[-1], 3):
-            raise PrtError(f"lighting must have shape (C={t.shape[-1]}, 3), got {tuple(l.shape)}")
+        dims = check_shape(t, "... V C", name="transfer")
+        check_shape(l, "C 3", name="lighting", dims=dims)
     out = t @ l.to(t.dtype)
     return out if albedo is None else out * albedo

@@ -16,14 +16,14 @@ import torch
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import band_of, check_directions, check_order, sh_basis
+from prt_torch.shapes import check_shape
 
 
 def check_frames(frames: torch.Tensor, name: str = "frames") -> None:
     """Validate ``(..., V, 3, 3)`` finite orthonormal frames (tolerance 1e-3)."""
     if not isinstance(frames, torch.Tensor):
         raise PrtError(f"{name} must be a torch tensor, got {type(frames).__name__}")
-    if frames.ndim < 3 or tuple(frames.shape[-2:]) != (3, 3):
-        raise PrtError(f"{name} must have shape (..., V, 3, 3), got {tuple(frames.shape)}")
+    check_shape(frames, "... V 3 3", name=name)
     f = frames.detach().to(torch.float64)
     if not torch.isfinite(f).all():
         raise PrtError(f"{name} contain NaN or Inf")
@@ -50,12 +50,9 @@ def rotate_lobes_to_frames(lobe_dirs: torch.Tensor, lobe_coeffs: torch.Tensor, f
         for name, t in (("lobe_dirs", lobe_dirs), ("lobe_coeffs", lobe_coeffs)):
             if not isinstance(t, torch.Tensor):
                 raise PrtError(f"{name} must be a torch tensor, got {type(t).__name__}")
-        if lobe_dirs.ndim != 2 or lobe_dirs.shape[1] != 3:
-            raise PrtError(f"lobe_dirs must have shape (K, 3), got {tuple(lobe_dirs.shape)}")
+        dims = check_shape(lobe_dirs, "K 3", name="lobe_dirs")
         check_directions(lobe_dirs, "lobe_dirs")
-        if lobe_coeffs.ndim != 3 or lobe_coeffs.shape[0] != lobe_dirs.shape[0] or lobe_coeffs.shape[2] != 3:
-            raise PrtError(f"lobe_coeffs must have shape (K={lobe_dirs.shape[0]}, n, 3), got "
-                           f"{tuple(lobe_coeffs.shape)}")
+        check_shape(lobe_coeffs, "K n 3", name="lobe_coeffs", dims=dims)
         check_order(int(lobe_coeffs.shape[1]))
         if not torch.isfinite(lobe_coeffs).all():
             raise PrtError("lobe_coeffs contain NaN or Inf")

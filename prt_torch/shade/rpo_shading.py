@@ -28,6 +28,7 @@ from prt_torch.brdf.rpo import RPO
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import check_directions, sh_basis
 from prt_torch.shade.triple_product import gather_product, gaunt_flat, gaunt_gather_tensors, outer_product_sh
+from prt_torch.shapes import check_shape
 
 Method = Literal["matrix", "product", "fused", "fused_gather"]
 METHODS: tuple[str, ...] = ("matrix", "product", "fused", "fused_gather")
@@ -69,13 +70,9 @@ def _check_inputs(v: torch.Tensor, l_local: torch.Tensor, wo_local: torch.Tensor
             raise PrtError(f"{name} must be a torch tensor, got {type(x).__name__}")
         if not torch.isfinite(x).all():
             raise PrtError(f"{name} contain NaN or Inf")
-    if v.ndim < 2 or v.shape[-1] != c:
-        raise PrtError(f"visibility must have shape (..., V, C={c}), got {tuple(v.shape)}")
-    if l_local.shape[:-1] != v.shape or l_local.shape[-1] != 3:
-        raise PrtError(f"lighting must have shape {(*v.shape, 3)} (..., V, C, 3), got {tuple(l_local.shape)}")
-    if wo_local.shape != (*v.shape[:-1], 3):
-        raise PrtError(f"view directions must have shape {(*v.shape[:-1], 3)} (..., V, 3), got "
-                       f"{tuple(wo_local.shape)}")
+    check_shape(v, ("*", "V", c), name="visibility")
+    check_shape(l_local, (*v.shape, 3), name="lighting")
+    check_shape(wo_local, (*v.shape[:-1], 3), name="view directions")
     check_directions(wo_local, "view directions")
 
 

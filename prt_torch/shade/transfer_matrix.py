@@ -22,6 +22,7 @@ import numpy as np
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import _is_torch, check_directions, sh_basis
+from prt_torch.shapes import check_shape
 
 
 def _einsum(torch_backend: bool) -> Any:
@@ -73,8 +74,7 @@ def shade_matrix(T: Any, L: Any, frames: Any, view_dirs: Any, H: Any, G: Any, ti
 def _check(T: Any, L: Any, frames: Any, view_dirs: Any, H: Any, G: Any, t: bool) -> None:
     if not t and not isinstance(T, np.ndarray):
         raise PrtError(f"transfer matrices must be a numpy array or torch tensor, got {type(T).__name__}")
-    if T.ndim < 3 or T.shape[-1] != T.shape[-2]:
-        raise PrtError(f"transfer matrices must have shape (..., V, C, C), got {tuple(T.shape)}")
+    check_shape(T, "... V C C", name="transfer matrices")
     C = int(T.shape[-1])
     order = int(round(C**0.5))
     if order * order != C:
