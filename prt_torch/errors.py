@@ -2,7 +2,9 @@
 
 Every bad input (wrong shape, NaN, unknown file format, missing file, bad config) raises
 :class:`PrtError` with a one-line message naming the problem. The ``prt`` CLI prints such errors
-as ``error: <message>`` on one line and exits with status 2, without a traceback.
+as ``error: <message>`` on one line and exits with status 2, without a traceback. A run artifact that cannot be
+used raises a subclass saying why: :class:`MissingArtifact`, :class:`StaleArtifact` or :class:`DamagedArtifact`
+(all :class:`ArtifactError`), so a caller that falls back catches only the case it means.
 
 An input that is usable but suspect (negative radiance clamped, a config key without effect) is used with a
 :class:`PrtWarning` from :func:`warn`, a one-line message saying what was done; the CLI prints it as
@@ -16,6 +18,24 @@ import warnings
 
 class PrtError(ValueError):
     """A user-facing error: bad input, with a one-line message that names the problem."""
+
+
+class ArtifactError(PrtError):
+    """A run directory / store / export file that cannot be used as it is (one of the three below)."""
+
+
+class MissingArtifact(ArtifactError):
+    """A file or store a stage writes is not there (not baked / trained / exported yet)."""
+
+
+class StaleArtifact(ArtifactError):
+    """An artifact made from other inputs than the current ones (re-trained since exported, old format, other
+    key): running its stage again makes it current."""
+
+
+class DamagedArtifact(ArtifactError):
+    """An artifact that is there but unreadable or not what its commit record says (bad JSON / npz, sha256
+    mismatch, zarr chunk checksum)."""
 
 
 class PrtWarning(UserWarning):

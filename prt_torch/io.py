@@ -180,14 +180,15 @@ def read_npz_with_meta(path: str | os.PathLike[str], what: str) -> tuple[dict[st
     file is a one-line :class:`~prt_torch.errors.PrtError` naming ``what`` (e.g. ``"character"``) and the path."""
     import numpy as np
 
-    from prt_torch.errors import PrtError, check
+    from prt_torch.errors import DamagedArtifact, MissingArtifact
 
     path = Path(path)
-    check(path.is_file(), f"{what} file not found: {path}")
+    if not path.is_file():
+        raise MissingArtifact(f"{what} file not found: {path}")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
         meta = json.loads(str(data["meta"]))
     except (OSError, ValueError, KeyError) as e:
-        raise PrtError(f"not a {what} .npz file: {path} ({type(e).__name__})") from None
+        raise DamagedArtifact(f"not a {what} .npz file: {path} ({type(e).__name__})") from None
     return data, meta

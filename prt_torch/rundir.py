@@ -45,7 +45,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError, StaleArtifact, check
 from prt_torch.io import atomic_write_json, remove_stale_temporaries
 
 if TYPE_CHECKING:
@@ -178,7 +178,8 @@ class RunDir:
 
     def require(self) -> RunDir:
         """``self``; :class:`PrtError` when the directory does not exist."""
-        check(self.path.is_dir(), f"run directory not found: {self.path}")
+        if not self.path.is_dir():
+            raise MissingArtifact(f"run directory not found: {self.path}")
         return self
 
     # -- bake ------------------------------------------------------------------------------------
@@ -202,7 +203,7 @@ class RunDir:
         from prt_torch.bake.store import BakedDataset
 
         if not self.dataset_path.exists():
-            raise PrtError(f"no dataset in {self.path} ({_DATASET} missing): run `prt bake CONFIG` first")
+            raise MissingArtifact(f"no dataset in {self.path} ({_DATASET} missing): run `prt bake CONFIG` first")
         return BakedDataset(self.dataset_path)
 
     def character(self, expect_hash: str | None = None) -> Character:
@@ -210,11 +211,12 @@ class RunDir:
         from prt_torch.rig.character import Character
 
         if not self.character_path.is_file():
-            raise PrtError(f"no character in {self.path} ({_CHARACTER} missing): run `prt bake CONFIG` first")
+            raise MissingArtifact(f"no character in {self.path} ({_CHARACTER} missing): run `prt bake CONFIG` first")
         ch = Character.load(self.character_path)
         if expect_hash:
             h = ch.content_hash()
-            check(h == expect_hash, f"{self.character_path} (hash {h[:12]}) is not the character this run was "
+            if h != expect_hash:
+                raise StaleArtifact(f"{self.character_path} (hash {h[:12]}) is not the character this run was "
                                     f"made for ({expect_hash[:12]})")
         return ch
 
@@ -257,7 +259,7 @@ class RunDir:
         """``transfer.json`` (written by ``prt train`` with ``train.transfer``), every model file it lists verified."""
         path = self.transfer_json
         if not path.is_file():
-            raise PrtError(f"no learned transfer in {self.path} (train with a `train.transfer` section)")
+            raise MissingArtifact(f"no learned transfer in {self.path} (train with a `train.transfer` section)")
         meta = self._read_unit(path, "train")
         self._verify_files(path, "train", meta.get("files"), [])
         return meta
@@ -271,7 +273,7 @@ class RunDir:
     def model_meta(self) -> dict[str, Any]:
         """``model.json``: conventions, dimensions, kinds, chosen hyper-parameters."""
         if not self.model_json.is_file():
-            raise PrtError(f"model metadata not found: {self.model_json} (run `prt train CONFIG` first)")
+            raise MissingArtifact(f"model metadata not found: {self.model_json} (run `prt train CONFIG` first)")
         return self.verify_model_meta(self._read_unit(self.model_json, "train"))
 
     # -- eval / compare ----------------------------------------------------------------------------
@@ -412,9 +414,10 @@ class RunDir:
     def export_meta(self) -> dict[str, Any]:
         """``export.json``, verified (:meth:`verify_export_meta`); :class:`PrtError` naming ``prt export`` when
         the run is not exported or its export is incomplete."""
-        check(self.path.is_dir(), f"run directory not found: {self.path}")
-        check(self.export_json.is_file(), f"{self.path} is not exported ({_EXPORT_JSON} missing): run `prt export "
-                                          f"{self.path}` first")
+        self.require()
+        if not self.export_json.is_file():
+            raise MissingArtifact(f"{self.path} is not exported ({_EXPORT_JSON} missing): run `prt export "
+                                  f"{self.path}` first")
         return self.verify_export_meta(self._read_unit(self.export_json, "export"))
 
     # -- demo / play -----------------------------------------------------------------------------
@@ -558,7 +561,7 @@ class RunDir:
         check(stage in STAGES, f"unknown stage {stage!r}: expected one of {list(STAGES)}")
         try:
             keys = self.stage_keys()
-        except PrtError:  # a damaged stages.json only means that nothing is known to be up to date
+        except DamagedArtifact:  # a damaged stages.json only means that nothing is known to be up to date
             keys = {stage: ""}
         if stage in keys:
             keys.pop(stage)
@@ -574,13 +577,13 @@ class RunDir:
         try:
             return self.read_json(path)
         except PrtError as exc:
-            raise PrtError(f"{exc}: {self._rerun(stage)}") from None
+            raise type(exc)(f"{exc}: {self._rerun(stage)}") from None
 
     def _rerun(self, stage: str) -> str:
         return "run `prt train CONFIG` again" if stage == "train" else f"run `prt export {self.path}` again"
 
-    def _unit_error(self, path: Path, stage: str, problem: str) -> PrtError:
-        return PrtError(f"{path}: {problem} (incomplete or damaged {stage} output): {self._rerun(stage)}")
+    def _unit_error(self, path: Path, stage: str, problem: str) -> DamagedArtifact:
+        return DamagedArtifact(f"{path}: {problem} (incomplete or damaged {stage} output): {self._rerun(stage)}")
 
     def _verify_files(self, path: Path, stage: str, hashes: Any, required: Iterable[str]) -> None:
         """Every file of ``hashes`` (``{relative path: sha256}``) exists with that hash; ``required`` are listed."""
@@ -659,8 +662,9 @@ class RunDir:
         try:
             data = json.loads(Path(path).read_text(encoding="utf-8"))
         except FileNotFoundError:
-            raise PrtError(f"file not found: {path}") from None
+            raise MissingArtifact(f"file not found: {path}") from None
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise PrtError(f"{path}: not valid JSON ({type(exc).__name__})") from None
-        check(isinstance(data, dict), f"{path}: expected a JSON object")
+            raise DamagedArtifact(f"{path}: not valid JSON ({type(exc).__name__})") from None
+        if not isinstance(data, dict):
+            raise DamagedArtifact(f"{path}: expected a JSON object")
         return data

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from prt_torch import limits as L
+from prt_torch.conventions import BelowHorizon
 
 
 class SubsurfaceConfig(BaseModel):
@@ -43,7 +42,7 @@ class BakeConfig(BaseModel):
     #: visibility below the horizon (no ray is shot there): "one" (seed 003 eq. 1, an unoccluded vertex is the
     #: constant 1; the default: measured closer to the full-integral reference, docs/DESIGN.md) or "zero"; recorded
     #: in the dataset, which every reader follows (a store without it is "zero")
-    below_horizon: Literal["zero", "one"] = "one"
+    below_horizon: BelowHorizon = "one"
     transfer: bool = False  # also bake global-frame cosine-weighted diffuse transfer
     transfer_order: int = Field(default=6, ge=1, le=8)
     bounces: int = Field(default=0, ge=0, le=3)  # diffuse interreflection bounces (transfer only)

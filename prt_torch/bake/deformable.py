@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import DamagedArtifact, PrtError, StaleArtifact
 
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
@@ -126,7 +126,7 @@ def missing_sequences(cfg: RunConfig, subject: Any | None = None) -> list[str]:
         return wanted
     try:
         have = set(open_cache(cfg, path).sequences())
-    except PrtError:
+    except (StaleArtifact, DamagedArtifact):
         return wanted
     return [s for s in wanted if s not in have]
 

@@ -56,7 +56,7 @@ from prt_torch.bake.store import (
 )
 from prt_torch.bake.trace import RaySet, trace_frame
 from prt_torch.bake.transfer_matrix import frame_results
-from prt_torch.errors import PrtError
+from prt_torch.errors import DamagedArtifact, PrtError
 from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.rundir import RunDir
 
@@ -319,7 +319,7 @@ def _prepare(cfg: RunConfig, plan: BakePlan) -> tuple[Path, StoreReport | None]:
     if exists:
         try:
             existing = BakedDataset(path, validate=False).attrs
-        except PrtError:
+        except DamagedArtifact:
             raise PrtError(f"{path} exists but is not a zarr dataset; move it away or delete it") from None
         check_compatible(path, attrs, existing)
     if char_path.exists():

@@ -50,7 +50,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError
 
 if TYPE_CHECKING:
     from prt_torch.rig.character import Character
@@ -344,21 +344,21 @@ class BakedDataset:
 
         self.path = Path(path)
         if not self.path.exists():
-            raise PrtError(f"dataset not found: {self.path}")
+            raise MissingArtifact(f"dataset not found: {self.path}")
         try:
             self._group = zarr.open_group(str(self.path), mode="r")
         except Exception as exc:
-            raise PrtError(f"{self.path}: not a zarr dataset ({type(exc).__name__})") from None
+            raise DamagedArtifact(f"{self.path}: not a zarr dataset ({type(exc).__name__})") from None
         self.attrs: dict[str, Any] = dict(self._group.attrs)
         self._arrays: dict[str, Any] = {}
         if not validate:
             return
         for name in ("pose", "visibility", "clip_id", "frame_index", "done", "cluster"):
             if name not in self._group:
-                raise PrtError(f"{self.path}: dataset has no '{name}' array")
+                raise DamagedArtifact(f"{self.path}: dataset has no '{name}' array")
         for key in ("clip_names", "splits", "sh_order"):
             if key not in self.attrs:
-                raise PrtError(f"{self.path}: dataset has no '{key}' attribute")
+                raise DamagedArtifact(f"{self.path}: dataset has no '{key}' attribute")
 
     # -- metadata ------------------------------------------------------------------------------
     @property
@@ -594,7 +594,8 @@ class BakedDataset:
             done = self.done
         for coords in self._chunks(name, firsts):
             if coords and self._required(name, coords[0], done) and not self._chunk_file(name, coords).is_file():
-                raise PrtError(self._damage(name, coords, "missing chunk (would read as zeros)").message(self.path))
+                gap = self._damage(name, coords, "missing chunk (would read as zeros)")
+                raise DamagedArtifact(gap.message(self.path))
         try:
             if rows is None or not frame:
                 return np.asarray(a[...])
@@ -603,8 +604,8 @@ class BakedDataset:
             for coords in self._chunks(name, firsts):
                 bad = self._check_chunk(name, coords)
                 if bad is not None:
-                    raise PrtError(bad.message(self.path)) from None
-            raise PrtError(f"{self.path}: array '{name}': {_unreadable(exc)}; {REPAIR_HINT}") from None
+                    raise DamagedArtifact(bad.message(self.path)) from None
+            raise DamagedArtifact(f"{self.path}: array '{name}': {_unreadable(exc)}; {REPAIR_HINT}") from None
 
     def _done_checked(self) -> tuple[np.ndarray, list[Damage]]:
         """The done mask with damaged ``done`` chunks read as not done, and those chunks' damage."""
@@ -682,7 +683,7 @@ class BakedDataset:
         """
         idx = self.split_rows(split) if rows is None else np.asarray(rows, dtype=np.int64)
         if len(idx) == 0:
-            raise PrtError(f"{self.path}: split '{split}' has no baked frames")
+            raise MissingArtifact(f"{self.path}: split '{split}' has no baked frames")
         clip_id = self.clip_id
         if max_frames is not None and len(idx) > max_frames:
             if contiguous:
@@ -739,7 +740,7 @@ def open_dataset(path: str | os.PathLike[str]) -> BakedDataset:
     if p.is_dir() and not (p / "zarr.json").exists() and RunDir(p).dataset_path.is_dir():
         p = RunDir(p).dataset_path
     if not p.exists():
-        raise PrtError(f"dataset not found: {p}")
+        raise MissingArtifact(f"dataset not found: {p}")
     return BakedDataset(p)
 
 

@@ -15,10 +15,8 @@ from prt_torch.bake.directions import hemisphere_set, rotated_frames, vertex_ang
 from prt_torch.bake.embree import RayScene
 from prt_torch.bake.transfer import bounce_operator, direct_transfer, gather_entries, interreflect
 from prt_torch.bake.visibility import project_visibility, projection_table
+from prt_torch.conventions import BELOW_HORIZON
 from prt_torch.errors import PrtError
-
-#: what the visibility is below the horizon (``bake.below_horizon``): 0 (docs/DESIGN.md) or 1 (seed 003 eq. 1)
-BELOW_HORIZON = ("zero", "one")
 
 
 def check_below_horizon(value: object) -> str:

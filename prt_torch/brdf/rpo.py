@@ -33,7 +33,7 @@ from prt_torch.brdf.factor import (
     sh_factor_error,
     tabulate,
 )
-from prt_torch.errors import PrtError
+from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError, StaleArtifact
 from prt_torch.io import atomic_path
 from prt_torch.sh.basis import check_order, order_from_coeffs
 from prt_torch.sh.product import MAX_PRODUCT_ORDER, product_matrix
@@ -124,17 +124,17 @@ class RPO:
         """Read an RPO written by :meth:`save` (numpy only; ``M`` is rebuilt from ``u``)."""
         p = Path(path)
         if not p.is_file():
-            raise PrtError(f"RPO file not found: {p}")
+            raise MissingArtifact(f"RPO file not found: {p}")
         try:
             with np.load(p, allow_pickle=False) as z:
                 u, w, tint, meta, name = z["u"], z["w"], z["tint"], z["meta"], str(z["name"])
         except (KeyError, ValueError, OSError) as exc:
-            raise PrtError(f"{p.name}: not an RPO file ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+            raise DamagedArtifact(f"{p.name}: not an RPO file ({type(exc).__name__}: {exc})".splitlines()[0]) from None
         if meta.shape != (4,) or int(meta[0]) != RPO_FORMAT_VERSION:
-            raise PrtError(f"{p.name}: unsupported RPO file version")
+            raise StaleArtifact(f"{p.name}: unsupported RPO file version")
         rpo = cls.from_factors(u, w, tint, name, float(meta[2]), float(meta[3]))
         if rpo.order != int(meta[1]):
-            raise PrtError(f"{p.name}: RPO order {int(meta[1])} does not match its {u.shape[1]} coefficients")
+            raise DamagedArtifact(f"{p.name}: RPO order {int(meta[1])} does not match its {u.shape[1]} coefficients")
         return rpo
 
 
@@ -197,7 +197,7 @@ def builtin_rpo(name: str, order: int = 4, k: int = 8, cache_dir: str | os.PathL
     if use_cache and path.is_file():
         try:
             return RPO.load(path)
-        except PrtError:
+        except (StaleArtifact, DamagedArtifact):
             pass  # a stale or damaged cache entry: rebuild it
     rpo = build_rpo(brdf, order=order, k=k, name=name)
     if use_cache:

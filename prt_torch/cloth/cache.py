@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError, StaleArtifact
 
 FORMAT = "prt_torch.simulation/1"
 
@@ -38,14 +38,14 @@ class VertexCache:
 
         self.path = Path(path)
         if not self.path.exists():
-            raise PrtError(f"vertex cache not found: {self.path} (run `prt simulate CONFIG`)")
+            raise MissingArtifact(f"vertex cache not found: {self.path} (run `prt simulate CONFIG`)")
         try:
             self._group = zarr.open_group(str(self.path), mode="r")
             attrs = dict(self._group.attrs)
         except Exception as exc:
-            raise PrtError(f"{self.path}: not a vertex cache ({type(exc).__name__})") from None
+            raise DamagedArtifact(f"{self.path}: not a vertex cache ({type(exc).__name__})") from None
         if attrs.get("format") != FORMAT:
-            raise PrtError(f"{self.path}: not a vertex cache of format {FORMAT!r} (found {attrs.get('format')!r})")
+            raise StaleArtifact(f"{self.path}: not a vertex cache of format {FORMAT!r} (found {attrs.get('format')!r})")
         self.attrs: dict[str, Any] = attrs
 
     @property

@@ -168,13 +168,13 @@ def run(args: argparse.Namespace) -> int:
 def _trained(run: Any, key: str) -> bool:
     """Whether the run's models are up to date for ``key`` AND verify against their commit record (a run
     trained by an older version, or damaged since, is trained again instead of failing later)."""
-    from prt_torch.errors import PrtError
+    from prt_torch.errors import ArtifactError
 
     if not run.is_current("train", key, (run.model_path(), run.model_json)):
         return False
     try:
         run.model_meta()
-    except PrtError:
+    except ArtifactError:
         return False
     return True
 

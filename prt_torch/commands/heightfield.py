@@ -28,6 +28,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from prt_torch.conventions import BELOW_HORIZON
+
 HELP = "Dynamic height-field visibility (max pyramid + SH wedges) vs Embree: error, image PSNR, ms per frame."
 
 #: camera of the report images: the player's orbit at this elevation (radians) and this fraction of its distance
@@ -49,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rays", type=int, default=512, help="Embree rays per vertex of the truth (default 512)")
     parser.add_argument("--repeat", type=int, default=3, help="timed runs of the height-field generator (default 3)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
-    parser.add_argument("--below-horizon", default="one", choices=("one", "zero"),
+    parser.add_argument("--below-horizon", default="one", choices=BELOW_HORIZON[::-1],
                         help="visibility below the horizon (the bake's convention; default one)")
     parser.add_argument("--out", default="runs/heightfield", help="report directory (default runs/heightfield)")
     parser.add_argument("--json", action="store_true", help="print the JSON report instead of the table")

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import ArtifactError, check
 from prt_torch.io import atomic_write_json
 from prt_torch.rundir import GRAPHS, RunDir, file_sha256, stage_key
 
@@ -222,7 +222,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     if not force and run.is_current("export", key, outputs):
         try:
             return run.export_meta()
-        except PrtError:
+        except ArtifactError:
             pass  # damaged since: export again
     run.begin("export", outputs)
     character = run.character()

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import MissingArtifact
 from prt_torch.export.onnx_file import export_onnx
 from prt_torch.export.parity import PARITY_RTOL, Parity, check_parity
 from prt_torch.rundir import RunDir
@@ -90,7 +90,7 @@ def blocker_count(run: RunDir | Mapping[str, Any]) -> int:
     if isinstance(run, RunDir):
         try:
             attrs: Mapping[str, Any] = run.dataset().attrs
-        except PrtError:
+        except MissingArtifact:
             return DEFAULT_SPHERES
     else:
         attrs = run

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import ArtifactError, check
 from prt_torch.rundir import file_sha256
 
 #: the learned arrays a transfer graph may carry, in output order
@@ -92,7 +92,7 @@ def exported_transfer(run: Any) -> dict[str, Any] | None:
         return None
     try:
         meta = run.export_meta()
-    except PrtError:
+    except ArtifactError:
         return None
     entry = meta.get("transfer")
     if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):

@@ -196,7 +196,7 @@ def train_local(ds: Any, run: Any, cfg: Any, splits: dict[str, Any], progress: A
     ``heldout`` :class:`~prt_torch.bake.store.SplitData`, read with ``positions`` and ``frames``): fit each local kind
     whose file is missing or stale (its recorded :func:`local_key`), write it atomically, and return the metrics
     ``{kind: {fit_s, bytes, train, heldout}}``; without ``train.local`` stale local files are removed (``None``)."""
-    from prt_torch.errors import PrtError
+    from prt_torch.errors import DamagedArtifact, StaleArtifact
     from prt_torch.metrics import vis_rel_err
     from prt_torch.models.local import LOCAL_KINDS, load_local, save_local
 
@@ -218,7 +218,7 @@ def train_local(ds: Any, run: Any, cfg: Any, splits: dict[str, Any], progress: A
                 old = load_local(path)
                 if old.meta.get("key") == key:
                     model, fit_s = old, float(old.meta.get("fit_s", 0.0))
-            except PrtError:
+            except (StaleArtifact, DamagedArtifact):
                 pass
         if model is None:
             if progress is not None and hasattr(progress, "console"):

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.bake.store import BakedDataset
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import DamagedArtifact, PrtError, StaleArtifact, check
 from prt_torch.fit.config import S001Config, TrainConfig
 from prt_torch.models.posespace import CompressedTransfer, segment_bone_weights
 from prt_torch.rundir import RunDir, stage_key
@@ -293,7 +293,7 @@ def train_s001(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any = 
             old = CompressedTransfer.load(path)
             if old.meta.get("key") == key:
                 return old.meta
-        except PrtError:
+        except (StaleArtifact, DamagedArtifact):
             pass
     from prt_torch.fit.inputs import load_skinning
 

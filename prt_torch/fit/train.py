@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from prt_torch.bake.store import BakedDataset, SplitData, open_dataset
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import MissingArtifact, check
 from prt_torch.fit.config import TrainConfig
 from prt_torch.fit.device import Array, concat, fit_device, host, like, permute, resolve_device, stack, zeros
 from prt_torch.fit.folds import blocked_folds
@@ -427,7 +427,7 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     if "heldout" in ds.splits:
         try:
             splits["heldout"] = ds.split("heldout", extra=extra, max_frames=cfg.eval_frames)
-        except PrtError:
+        except MissingArtifact:  # no held-out frame baked yet
             pass
     for kind, r in fits.items():
         metrics["models"][kind] = {"fit_s": r.fit_s}

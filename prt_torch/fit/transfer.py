@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.bake.store import BakedDataset, SplitData
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import MissingArtifact, check
 from prt_torch.fit.config import TrainConfig, TransferConfig
 from prt_torch.fit.folds import blocked_folds
 from prt_torch.fit.train import FitResult, Reduced, _log, cv_train_only, fit_kinds, fit_ridge_kind
@@ -142,7 +142,7 @@ def train_transfer(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: An
     if "heldout" in ds.splits:
         try:
             held = ds.split("heldout", extra=tuple(arrays), max_frames=cfg.eval_frames)
-        except PrtError:
+        except MissingArtifact:  # no held-out frame baked yet
             held = None
     train_only = cv_train_only(ds, train, cfg)
     meta: dict[str, Any] = {"format": FORMAT, "config": tcfg.model_dump(mode="json"), "arrays": {},

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import DamagedArtifact, PrtError, check
 
 #: model kinds of the local family
 LOCAL_KINDS = ("linear", "mlp")
@@ -226,4 +226,4 @@ def load_local(path: Any) -> LocalVisibility:
         return LocalVisibility(cfg["kind"], st["neighbours"], [st[f"w{i}"] for i in range(n)],
                                [st[f"b{i}"] for i in range(n - 1)], st["mean"], cfg.get("meta")).float().eval()
     except KeyError as exc:
-        raise PrtError(f"{path}: local model file lacks {exc}") from None
+        raise DamagedArtifact(f"{path}: local model file lacks {exc}") from None

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from prt_torch.errors import check
+from prt_torch.errors import DamagedArtifact, check
 from prt_torch.io import atomic_write_bytes, read_npz_with_meta
 
 FEATURES_PER_JOINT = 6
@@ -312,5 +312,6 @@ class CompressedTransfer:
         """Read ``s001.npz`` (a missing or malformed file: one-line :class:`PrtError`)."""
         data, meta = read_npz_with_meta(path, "s001")
         missing = [n for n in ARRAYS if n not in data]
-        check(not missing, f"{path}: s001 file lacks {', '.join(missing)} (re-run `prt train`)")
+        if missing:
+            raise DamagedArtifact(f"{path}: s001 file lacks {', '.join(missing)} (re-run `prt train`)")
         return cls(**{n: data[n] for n in ARRAYS}, meta=meta)

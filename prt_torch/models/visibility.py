@@ -26,7 +26,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import DamagedArtifact, MissingArtifact, StaleArtifact, check
 from prt_torch.io import atomic_path
 from prt_torch.models.projection import GlobalUnprojection, InputProjection, OutputUnprojection
 from prt_torch.models.regressors import REGRESSORS
@@ -168,14 +168,17 @@ def read_payload(path: str | Path, formats: tuple[str, ...], what: str = "model 
     one-line :class:`PrtError` naming ``what`` for a missing, unreadable or foreign file."""
     path = Path(path)
     if not path.is_file():
-        raise PrtError(f"{what} not found: {path}")
+        raise MissingArtifact(f"{what} not found: {path}")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling problem is a bad file
-        raise PrtError(f"{path}: not a prt_torch {what} ({type(exc).__name__})") from None
+        raise DamagedArtifact(f"{path}: not a prt_torch {what} ({type(exc).__name__})") from None
     if not isinstance(payload, dict) or payload.get("format") not in formats:
-        raise PrtError(f"{path}: not a prt_torch {what} (format {payload.get('format')!r})"
-                       if isinstance(payload, dict) else f"{path}: not a prt_torch {what}")
+        fmt = payload.get("format") if isinstance(payload, dict) else None
+        ours = isinstance(fmt, str) and any(fmt.split("/")[0] == f.split("/")[0] for f in formats)
+        raise (StaleArtifact if ours else DamagedArtifact)(
+            f"{path}: not a prt_torch {what} (format {payload.get('format')!r})" if isinstance(payload, dict)
+            else f"{path}: not a prt_torch {what}")
     return payload
 
 
@@ -223,10 +226,11 @@ def load_model(run_dir: str | Path | RunDir, kind: str | None = None) -> Visibil
     run = RunDir.of(run_dir).require()
     path = model_path(run, kind)
     if not path.is_file():
-        raise PrtError(f"no trained {'default' if kind is None else kind} model in {run.path} ({path.name} missing)")
+        raise MissingArtifact(f"no trained {'default' if kind is None else kind} model in {run.path} "
+                              f"({path.name} missing)")
     meta = run.model_meta()  # the train unit's commit record: every model file has its recorded sha256
     if kind is not None and kind not in meta["kinds"]:
-        raise PrtError(f"{run.model_json}: this run's last training has no {kind} model (kinds {meta['kinds']})")
+        raise StaleArtifact(f"{run.model_json}: this run's last training has no {kind} model (kinds {meta['kinds']})")
     return load_model_file(path)
 
 

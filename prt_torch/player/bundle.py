@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import MissingArtifact, PrtError, StaleArtifact, check
 from prt_torch.rundir import RunDir, file_sha256
 from prt_torch.runtime.session import OrtGraph
 
@@ -44,7 +44,7 @@ def load_rpo_tensors(path: str | os.PathLike[str], order: int, n_terms: int) -> 
 
     path = Path(path)
     if not path.is_file():
-        raise PrtError(f"RPO file not found: {path}")
+        raise MissingArtifact(f"RPO file not found: {path}")
     rpo = RPO.load(path)
     M = np.asarray(rpo.M, dtype=np.float32)
     w = np.asarray(rpo.w, dtype=np.float32)
@@ -80,7 +80,7 @@ class RunBundle:
         self.n_vertices = int(self.meta["n_vertices"])
         self.n_features = int(self.meta["n_features"])
         self.n_terms = int(self.meta["n_terms"])
-        from prt_torch.player.lighting import BELOW_HORIZON
+        from prt_torch.conventions import BELOW_HORIZON
 
         #: the visibility convention below the horizon of the exported dataset ("zero" for older exports)
         self.below_horizon = str(self.meta.get("below_horizon", "zero"))
@@ -126,8 +126,8 @@ class RunBundle:
         src = self.run.inside(rel)
         check(src is not None, f"{self.run.export_json}: bad key 'model_file': run `prt export {self.run_dir}` again")
         if src.is_file() and file_sha256(src) != self.meta["model_sha256"]:
-            raise PrtError(f"{self.run.export_json} is stale: {rel} changed since it was exported (re-trained?): "
-                           f"run `prt export {self.run_dir}`")
+            raise StaleArtifact(f"{self.run.export_json} is stale: {rel} changed since it was exported (re-trained?): "
+                                f"run `prt export {self.run_dir}`")
 
     @property
     def brdf_names(self) -> list[str]:

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError, check
 from prt_torch.player.player import Player, PlayResult, sequence_view
 from prt_torch.player.posing import PoseBatch
 from prt_torch.player.timing import FrameTimer
@@ -403,5 +403,5 @@ def is_deformable_export(run_dir: str | os.PathLike[str] | RunDir) -> bool:
     run = RunDir.of(run_dir)
     try:
         return isinstance(run.read_json(run.export_json).get("deformable"), dict)
-    except PrtError:
+    except (MissingArtifact, DamagedArtifact):
         return False

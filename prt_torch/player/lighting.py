@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from prt_torch.conventions import BELOW_HORIZON
 from prt_torch.errors import PrtError
 
 
@@ -84,10 +85,6 @@ def load_lighting(env: str | os.PathLike[str] | None, order: int, n_lobes: int =
     if not path.is_file():
         raise PrtError(f"environment map not found: {path}")
     return lighting_from_sh(envmap_to_sh(load_envmap(path), order), n_lobes, source=str(path), window=window)
-
-
-#: the visibility conventions below the horizon (``bake.below_horizon``; export.json ``below_horizon``)
-BELOW_HORIZON = ("zero", "one")
 
 
 def hemisphere_visibility(order: int, below_horizon: str = "zero") -> np.ndarray:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import DamagedArtifact, PrtError, StaleArtifact, check
 
 #: specular share of a dielectric (metallic = 0) material; metals are all specular
 SPECULAR_WEIGHT = 0.25
@@ -190,7 +190,7 @@ def material_rpo_file(material: Material, order: int, k: int, run: Any = None,
             try:
                 RPO.load(path)
                 return path
-            except PrtError:
+            except (StaleArtifact, DamagedArtifact):
                 pass  # damaged cache entry: rebuilt below
     if not build:
         return None

@@ -35,13 +35,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from prt_torch.conventions import BELOW_HORIZON
 from prt_torch.errors import check
 from prt_torch.sh.product import mask_below_horizon, sh_product
 from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
 
 #: the world up axis (z up, docs/DESIGN.md): the ground plane's normal
 UP = np.array([0.0, 0.0, 1.0])
-BELOW_HORIZON = ("zero", "one")
 
 
 def constant_one(order: int) -> np.ndarray:

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
+from prt_torch.conventions import BELOW_HORIZON
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import _is_torch, band_of, check_float_array, check_order, order_from_coeffs, sh_basis
 from prt_torch.sh.quadrature import gauss_product_rule
@@ -225,7 +226,7 @@ def mask_below_horizon(v: np.ndarray, order: int, below_horizon: str | None) -> 
     """``(..., C)`` float64: whole-sphere local-frame visibility ``v`` in a below-horizon convention (seed 003
     eq. 1): ``"zero"``: ``H v``; ``"one"``: ``1 - H (1 - v)`` (only upper-hemisphere occlusion counts); ``None``:
     ``v``. The numpy twin of :class:`prt_torch.shexp.ShexpVisibility`'s last step (the same ``P_H``)."""
-    if below_horizon not in (None, "zero", "one"):
+    if below_horizon is not None and below_horizon not in BELOW_HORIZON:
         raise PrtError(f"below_horizon must be None, 'zero' or 'one', got {below_horizon!r}")
     v = np.asarray(v, dtype=np.float64)
     if below_horizon is None:

@@ -38,13 +38,14 @@ from typing import Any
 import numpy as np
 import torch
 
+from prt_torch.conventions import BELOW_HORIZON as CONVENTIONS
 from prt_torch.errors import PrtError
 from prt_torch.sh.product import hemisphere_product
 from prt_torch.shexp.exponential import SHExponential, check_method
 from prt_torch.shexp.tables import cos_log_table
 from prt_torch.shexp.zonal_sum import zonal_sum
 
-BELOW_HORIZON = (None, "zero", "one")
+BELOW_HORIZON = (None, *CONVENTIONS)
 CHUNK_ELEMENTS = 1 << 20
 """Largest ``batch * V * S * C`` evaluated at once by :func:`shexp_visibility` (chunked over ``V`` above)."""
 

@@ -29,7 +29,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import DamagedArtifact, check
 from prt_torch.export.transfer_shading import ARRAYS, light_dot, light_input, transfer_shading
 
 ARRAY = "transfer"
@@ -56,7 +56,7 @@ def transfer_meta(run: CompareRun) -> dict[str, Any] | None:
         return None
     try:
         return run.run.transfer_meta()
-    except PrtError:
+    except DamagedArtifact:
         return None
 
 
