@@ -30,6 +30,7 @@ import numpy as np
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import check_order, sh_basis
+from prt_torch.shapes import check_shape
 
 #: default tabulation resolution: Gauss-Legendre nodes in cos(theta) x azimuths (per direction set)
 DEFAULT_N_THETA = 24
@@ -131,8 +132,7 @@ def factor_brdf(brdf: object, k: int = 8, n_theta: int = DEFAULT_N_THETA, n_phi:
     if k > len(w):
         raise PrtError(f"k={k} exceeds the {len(w)} tabulated directions")
     F = tabulate(brdf, dirs, dirs) if table is None else np.asarray(table, dtype=np.float64)
-    if F.shape != (len(w), len(w)):
-        raise PrtError(f"BRDF table must have shape {(len(w), len(w))}, got {F.shape}")
+    check_shape(F, (len(w), len(w)), name="BRDF table")
     sw = np.sqrt(w)
     A = sw[:, None] * F * sw[None, :]
     U, S, Vt = _top_svd(A, k)

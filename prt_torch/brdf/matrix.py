@@ -22,6 +22,7 @@ import numpy as np
 from prt_torch.brdf.factor import DEFAULT_N_PHI, DEFAULT_N_THETA, hemisphere_rule, tabulate
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import check_order, sh_basis
+from prt_torch.shapes import check_shape
 
 #: highest SH order of a BRDF matrix
 MAX_BRDF_MATRIX_ORDER = 8
@@ -45,7 +46,8 @@ def brdf_matrix(brdf: object, order: int = 4, n_theta: int = DEFAULT_N_THETA, n_
 def factor(B: np.ndarray, terms: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """Truncated SVD ``B ~ H G^T``: ``H (C, terms)`` view map, ``G (C, terms)`` light map (float64)."""
     B = np.asarray(B, dtype=np.float64)
-    if B.ndim != 2 or B.shape[0] != B.shape[1] or B.shape[0] < 1:
+    check_shape(B, "C C", name="BRDF matrix")
+    if B.shape[0] < 1:
         raise PrtError(f"BRDF matrix must be square (C, C), got {B.shape}")
     if not np.isfinite(B).all():
         raise PrtError("BRDF matrix contains NaN or Inf")

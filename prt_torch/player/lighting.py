@@ -16,6 +16,7 @@ import numpy as np
 
 from prt_torch.conventions import BELOW_HORIZON
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 
 @dataclass(frozen=True)
@@ -59,8 +60,7 @@ def lighting_from_sh(sh: np.ndarray, n_lobes: int = 3, source: str = "sh", windo
     from prt_torch.sh.zhfit import fit_zh_lobes
 
     sh = np.asarray(sh, dtype=np.float64)
-    if sh.ndim != 2 or sh.shape[1] != 3:
-        raise PrtError(f"SH lighting must have shape (C, 3), got {sh.shape}")
+    check_shape(sh, "C 3", name="SH lighting")
     if not np.isfinite(sh).all():
         raise PrtError("SH lighting contains NaN or Inf")
     if window:

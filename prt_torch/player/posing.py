@@ -18,6 +18,7 @@ import numpy as np
 
 from prt_torch.errors import PrtError, check
 from prt_torch.rig.vertex_frames import dot3, fallback_axes, vertex_frames_soa
+from prt_torch.shapes import check_shape
 
 
 class PoseBatch:
@@ -105,7 +106,7 @@ class Poser:
         self.character = character
         v = character.num_vertices
         cluster = np.asarray(cluster)
-        check(cluster.shape == (v,), f"cluster labels must be ({v},), got {cluster.shape}")
+        check_shape(cluster, (v,), name="cluster labels")
         axes = np.asarray(cluster_axis, dtype=np.float64)
         bones = np.asarray(cluster_bone).astype(np.intp)
         check(axes.ndim == 2 and axes.shape[1] == 3 and bones.shape == (axes.shape[0],)
@@ -130,7 +131,8 @@ class Poser:
     def _checked_local(self, local: np.ndarray) -> np.ndarray:
         ch = self.character
         local = np.asarray(local, dtype=np.float64)
-        if local.ndim != 4 or local.shape[1:] != (ch.num_joints, 4, 4) or local.shape[0] < 1:
+        check_shape(local, ("B", ch.num_joints, 4, 4), name="local joint transforms")
+        if local.shape[0] < 1:
             raise PrtError(f"local joint transforms must be (B, {ch.num_joints}, 4, 4) with B >= 1, got {local.shape}")
         if not np.isfinite(local).all():
             raise PrtError("local joint transforms contain NaN or Inf")

@@ -27,6 +27,7 @@ import numpy as np
 
 from prt_torch.errors import check
 from prt_torch.models.posespace import CompressedTransfer, segment_rotations
+from prt_torch.shapes import check_shape
 
 SCHEMES = ("s001", "posespace")
 
@@ -61,13 +62,13 @@ class S001Player:
         ``Q_i = G^T U_i`` per PCA cluster and basis (``(M, nb + 1, n_t, C)`` per BRDF)."""
         c = self.data.n_coeffs
         light = np.asarray(light, dtype=np.float64)
-        check(light.shape == (c, 3), f"lighting must be ({c}, 3) SH, got {light.shape}")
+        check_shape(light, (c, 3), name="SH lighting")
         self._light = light
         self._h, self._q = {}, {}
         for name, (h, g) in brdfs.items():
             h, g = np.asarray(h, np.float64), np.asarray(g, np.float64)
-            check(h.ndim == 2 and h.shape[0] == c and g.shape == h.shape,
-                  f"BRDF {name!r}: H and G must be ({c}, n_t), got {h.shape}, {g.shape}")
+            dims = check_shape(h, (c, "n_t"), name=f"BRDF {name!r}: H")
+            check_shape(g, (c, "n_t"), name=f"BRDF {name!r}: G", dims=dims)
             self._q[name] = np.einsum("ct,mbcd->mbtd", g, self._u).astype(np.float32)  # Q_i = G^T U_i
             self._h[name] = h.astype(np.float32)
 
@@ -126,8 +127,8 @@ class S001Player:
         v = self.data.n_vertices
         frames = np.asarray(frames, np.float32)
         positions = np.asarray(positions, np.float32)
-        check(frames.shape == (v, 3, 3) and positions.shape == (v, 3),
-              f"frames/positions must be ({v}, 3, 3)/({v}, 3), got {frames.shape}/{positions.shape}")
+        check_shape(frames, (v, 3, 3), name="frames")
+        check_shape(positions, (v, 3), name="positions")
         pair, w = self._weights(pose)
         # the lighting in each segment's reference frame, D(R_k)^T L: (K, C, 3), then per (cluster, segment) pair
         lk = np.einsum("kdc,dj->kcj", self.rotations(frames), self._light).astype(np.float32)

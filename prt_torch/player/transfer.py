@@ -27,6 +27,7 @@ from prt_torch.player.player import Player
 from prt_torch.player.timing import FrameTimer
 from prt_torch.rundir import RunDir
 from prt_torch.runtime.session import OrtGraph
+from prt_torch.shapes import check_shape
 
 
 class TransferPlayer(Player):
@@ -70,8 +71,7 @@ class TransferPlayer(Player):
     def transfer_radiance(self, features: np.ndarray) -> list[np.ndarray]:
         """``[L . t, (L . t_sss)]`` ``(B, V, 3)`` of pose features ``(B, A)`` (only these outputs are fetched)."""
         feats = np.ascontiguousarray(features, dtype=np.float32)
-        check(feats.ndim == 2 and feats.shape[1] == self.bundle.n_features,
-              f"pose features must be (B, {self.bundle.n_features}), got {feats.shape}")
+        check_shape(feats, ("B", self.bundle.n_features), name="pose features")
         return self.transfer_graph.session.run(self._outputs, {"pose": feats, "light": self.light_sh()})
 
     def shade(self, state: Any, visibility: np.ndarray | None = None, checked: bool = True,
