@@ -60,9 +60,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from prt_torch.deform.mesh import edge_pairs
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import check
 from prt_torch.rig.mesh import normal_scatter, vertex_normals, vertex_normals_soa
 from prt_torch.rig.vertex_frames import DEGENERATE_BELOW, cluster_axes, vertex_frames
+from prt_torch.shapes import check_shape
 
 #: a one-ring whose 2x2 tangent-plane moment ``M`` has ``det M <= SINGULAR * tr(M)^2`` gets no gradient
 SINGULAR = 1e-12
@@ -100,8 +101,8 @@ class FrameOperator:
 
     def __post_init__(self) -> None:
         v = self.labels.shape[0]
-        check(self.operator.shape == (2 * v, v), f"frame operator must be ({2 * v}, {v}), got {self.operator.shape}")
-        check(self.rest_frames.shape == (v, 3, 3), f"rest frames must be ({v}, 3, 3), got {self.rest_frames.shape}")
+        check_shape(self.operator, (2 * v, v), name="frame operator")
+        check_shape(self.rest_frames, (v, 3, 3), name="rest frames")
         check(self.faces.ndim == 2 and self.faces.shape[1] == 3 and int(self.faces.max()) < v
               and int(self.faces.min()) >= 0, f"frame operator faces must be (T, 3) indices into {v} vertices")
         self._op32 = self.operator.astype(np.float32)
@@ -119,16 +120,19 @@ class FrameOperator:
         components included); cloth should pass :func:`prt_torch.deform.mesh.check_deformable_mesh` first.
         """
         x = np.asarray(rest_vertices, dtype=np.float64)
-        check(x.ndim == 2 and x.shape[1] == 3 and x.shape[0] > 0, f"rest vertices must be (V, 3), got {x.shape}")
+        check_shape(x, "V 3", name="rest vertices")
+        check(x.shape[0] > 0, f"rest vertices must be (V, 3), got {x.shape}")
         check(bool(np.isfinite(x).all()), "rest vertices contain NaN or inf")
         f = np.asarray(faces)
-        check(f.ndim == 2 and f.shape[1] == 3 and f.shape[0] > 0 and np.issubdtype(f.dtype, np.integer),
+        check_shape(f, "T 3", name="faces")
+        check(f.shape[0] > 0 and np.issubdtype(f.dtype, np.integer),
               f"faces must be (T, 3) integers, got {f.dtype} {f.shape}")
         f = f.astype(np.int64)
         v = x.shape[0]
         check(int(f.min()) >= 0 and int(f.max()) < v, f"face index out of range [0, {v})")
         lab = np.asarray(labels)
-        check(lab.shape == (v,) and np.issubdtype(lab.dtype, np.integer) and int(lab.min()) >= 0,
+        check_shape(lab, (v,), name="cluster labels")
+        check(np.issubdtype(lab.dtype, np.integer) and int(lab.min()) >= 0,
               f"cluster labels must be ({v},) integers >= 0, got {lab.dtype} {lab.shape}")
         lab = lab.astype(np.int32)
         n0 = vertex_normals(x, f).astype(np.float64)
@@ -203,8 +207,7 @@ class FrameOperator:
         """
         p = np.ascontiguousarray(positions_soa, dtype=np.float32)
         v = self.n_vertices
-        if p.ndim != 3 or p.shape[1:] != (3, v):
-            raise PrtError(f"positions must be (B, 3, {v}), got {p.shape}")
+        check_shape(p, ("B", 3, v), name="positions")
         b = p.shape[0]
         n = vertex_normals_soa(p, self.faces, self._scatter)  # (B, 3, V)
         carried = np.empty((b, 3, 2 * v), np.float32)  # [a_t | a_b] per coordinate row
@@ -249,7 +252,7 @@ class FrameOperator:
         labels = np.asarray(d["deform_labels"]).astype(np.int32)
         v = labels.shape[0]
         indptr = np.asarray(d["deform_op_indptr"]).astype(np.int64)
-        check(indptr.shape == (2 * v + 1,), f"frame operator indptr must be ({2 * v + 1},), got {indptr.shape}")
+        check_shape(indptr, (2 * v + 1,), name="frame operator indptr")
         op = sp.csr_matrix((np.asarray(d["deform_op_data"], dtype=np.float64),
                             np.asarray(d["deform_op_indices"]).astype(np.int32), indptr), shape=(2 * v, v))
         return cls(operator=op, faces=np.asarray(d["deform_faces"]).astype(np.int64), labels=labels,
@@ -293,14 +296,14 @@ def frame_coherence(frames: np.ndarray, faces: np.ndarray, labels: np.ndarray | 
     pairs = edge_pairs(faces, v)
     if labels is not None:
         lab = np.asarray(labels)
-        check(lab.shape == (v,), f"labels must be ({v},), got {lab.shape}")
+        check_shape(lab, (v,), name="labels")
         pairs = pairs[lab[pairs[:, 0]] == lab[pairs[:, 1]]]
     if pairs.size == 0:
         return 0.0
     ang = _tangent_angles(fr, pairs)
     if rest is not None:
         r = np.asarray(rest)
-        check(r.shape == (v, 3, 3), f"rest frames must be ({v}, 3, 3), got {r.shape}")
+        check_shape(r, (v, 3, 3), name="rest frames")
         ang = np.abs(ang - _tangent_angles(r, pairs))
     return float(ang.max())
 
@@ -309,7 +312,7 @@ def frame_turn(frames: np.ndarray) -> float:
     """Worst angle (degrees) a vertex tangent turns between consecutive frames of ``(F, V, 3, 3)`` (temporal
     coherence, as the skinned frames are checked in tests/rig); 0 for a single frame."""
     fr = np.asarray(frames, dtype=np.float64)
-    check(fr.ndim == 4 and fr.shape[-2:] == (3, 3), f"frames must be (F, V, 3, 3), got {fr.shape}")
+    check_shape(fr, "F V 3 3", name="frames")
     if fr.shape[0] < 2:
         return 0.0
     t = _normalise(fr[..., 0, :])

@@ -29,6 +29,7 @@ from prt_torch.errors import check
 from prt_torch.rig.rotations import rotation_part
 from prt_torch.rig.skeleton import check_parents
 from prt_torch.rig.vertex_frames import DEGENERATE_BELOW, FALLBACK_BELOW, fallback_axes
+from prt_torch.shapes import check_shape
 
 POSING_INPUTS = ("local", "eye")
 POSING_OUTPUTS = ("positions", "normals", "frames", "view_dirs", "features")
@@ -64,7 +65,7 @@ class PosingGraph(nn.Module):
         cluster = np.asarray(cluster).astype(np.int64)
         axes = np.asarray(cluster_axis, dtype=np.float64)
         bones = np.asarray(cluster_bone).astype(np.int64)
-        check(cluster.shape == (v,), f"cluster labels must be ({v},), got {cluster.shape}")
+        check_shape(cluster, (v,), name="cluster labels")
         check(axes.ndim == 2 and axes.shape[1] == 3 and bones.shape == (axes.shape[0],)
               and int(cluster.max()) < axes.shape[0], "cluster axes / bones do not match the cluster labels")
         sel = np.arange(v) if order is None else np.asarray(order).astype(np.int64)

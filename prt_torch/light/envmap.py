@@ -39,6 +39,7 @@ import numpy as np
 from prt_torch.errors import PrtError
 from prt_torch.light.readers import read_hdr_image
 from prt_torch.sh.basis import check_directions, check_order, sh_basis
+from prt_torch.shapes import check_shape
 
 Layout = Literal["latlong", "probe"]
 LAYOUTS: tuple[str, ...] = ("latlong", "probe")
@@ -54,7 +55,8 @@ def check_image(image: np.ndarray, name: str = "environment map") -> np.ndarray:
     """Validate a ``(H, W, 3)`` finite image; returns it as float32. Raises :class:`PrtError`."""
     if not isinstance(image, np.ndarray):
         raise PrtError(f"{name} must be a numpy array, got {type(image).__name__}")
-    if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] < 1 or image.shape[1] < 1:
+    check_shape(image, "H W 3", name=name)
+    if image.shape[0] < 1 or image.shape[1] < 1:
         raise PrtError(f"{name} must have shape (H, W, 3), got {image.shape}")
     if not np.issubdtype(image.dtype, np.number):
         raise PrtError(f"{name} must be numeric, got {image.dtype}")

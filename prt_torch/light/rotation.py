@@ -11,13 +11,13 @@ import numpy as np
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import order_from_coeffs
+from prt_torch.shapes import check_shape
 
 
 def check_rotation(R: object, name: str = "rotation") -> np.ndarray:
     """Validate a ``(3, 3)`` proper rotation matrix (orthonormal, det +1); returns float64."""
     r = np.asarray(R, dtype=np.float64)
-    if r.shape != (3, 3):
-        raise PrtError(f"{name} must have shape (3, 3), got {r.shape}")
+    check_shape(r, "3 3", name=name)
     if not np.isfinite(r).all():
         raise PrtError(f"{name} contains NaN or Inf")
     err = float(np.abs(r @ r.T - np.eye(3)).max())
@@ -29,8 +29,7 @@ def check_rotation(R: object, name: str = "rotation") -> np.ndarray:
 def check_lighting(sh: object, name: str = "lighting") -> np.ndarray:
     """Validate SH lighting ``(C, 3)`` (C a square) with finite values; returns float64."""
     a = np.asarray(sh)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise PrtError(f"{name} must have shape (C, 3), got {a.shape}")
+    check_shape(a, "C 3", name=name)
     order_from_coeffs(a.shape[0])
     if not np.isfinite(a).all():
         raise PrtError(f"{name} contains NaN or Inf")

@@ -24,6 +24,7 @@ from prt_torch.rig.features import pose_features
 from prt_torch.rig.material import Material
 from prt_torch.rig.skeleton import check_parents, forward_kinematics
 from prt_torch.rig.skinning import check_skin_weights, dense_weights, skin
+from prt_torch.shapes import check_shape
 
 FORMAT_VERSION = 1
 
@@ -94,20 +95,21 @@ class Character:
         self.joint_names = [str(n) for n in self.joint_names]
         for attr in ("bind_local", "inverse_bind"):
             a = np.asarray(getattr(self, attr), dtype=np.float64)
-            check(a.shape == (j, 4, 4), f"{attr} must be ({j}, 4, 4), got {a.shape}")
+            check_shape(a, (j, 4, 4), name=attr)
             check(bool(np.all(np.isfinite(a))), f"{attr} contains NaN or inf")
             setattr(self, attr, a)
         v = np.asarray(self.rest_vertices)
-        check(v.ndim == 2 and v.shape[1] == 3 and v.shape[0] > 0, f"rest vertices must be (V, 3), got {v.shape}")
+        check_shape(v, "V 3", name="rest vertices")
+        check(v.shape[0] > 0, f"rest vertices must be (V, 3), got {v.shape}")
         check(bool(np.all(np.isfinite(v))), "rest vertex positions contain NaN or inf")
         self.rest_vertices = v.astype(np.float32)
         n = np.asarray(self.rest_normals)
-        check(n.shape == v.shape, f"rest normals must be {v.shape}, got {n.shape}")
+        check_shape(n, v.shape, name="rest normals")
         check(bool(np.all(np.isfinite(n))), "rest normals contain NaN or inf")
         self.rest_normals = n.astype(np.float32)
         f = np.asarray(self.faces)
-        check(f.ndim == 2 and f.shape[1] == 3 and np.issubdtype(f.dtype, np.integer),
-              f"faces must be (T, 3) integers, got {f.shape} {f.dtype}")
+        check_shape(f, "T 3", name="faces")
+        check(np.issubdtype(f.dtype, np.integer), f"faces must be (T, 3) integers, got {f.shape} {f.dtype}")
         check(bool(np.all((f >= 0) & (f < v.shape[0]))), f"face indices must lie in [0, {v.shape[0]})")
         self.faces = f.astype(np.int64)
         self.joints, self.weights = check_skin_weights(self.joints, self.weights, j, v.shape[0])
@@ -115,12 +117,12 @@ class Character:
             check(clip.num_joints == j, f"clip {name!r} has {clip.num_joints} joints, the skeleton {j}")
         if self.joint_limits is not None:
             lim = np.asarray(self.joint_limits, dtype=np.float64)
-            check(lim.shape == (j, 3, 2), f"joint limits must be ({j}, 3, 2), got {lim.shape}")
+            check_shape(lim, (j, 3, 2), name="joint limits")
             check(bool(np.all(lim[..., 0] <= lim[..., 1])), "joint limits must have min <= max")
             self.joint_limits = lim
         if self.uv is not None:
             uv = np.asarray(self.uv, dtype=np.float32)
-            check(uv.shape == (len(self.faces), 3, 2), f"uv must be ({len(self.faces)}, 3, 2), got {uv.shape}")
+            check_shape(uv, (len(self.faces), 3, 2), name="uv")
             check(bool(np.all(np.isfinite(uv))), "uv contains NaN or inf")
             self.uv = uv
         check(self.material is None or isinstance(self.material, Material),

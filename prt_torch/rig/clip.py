@@ -8,6 +8,7 @@ import numpy as np
 
 from prt_torch.errors import check
 from prt_torch.rig.rotations import matrix_to_quat, quat_to_matrix, slerp
+from prt_torch.shapes import check_shape
 
 
 @dataclass(repr=False)
@@ -24,7 +25,8 @@ class Clip:
 
     def __post_init__(self) -> None:
         self.local = np.asarray(self.local, dtype=np.float64)
-        check(self.local.ndim == 4 and self.local.shape[-2:] == (4, 4) and self.local.shape[0] >= 1,
+        check_shape(self.local, "F J 4 4", name=f"clip {self.name!r}: local transforms")
+        check(self.local.shape[0] >= 1,
               f"clip {self.name!r}: local transforms must be (F, J, 4, 4), got {self.local.shape}")
         check(bool(np.all(np.isfinite(self.local))), f"clip {self.name!r}: local transforms contain NaN or inf")
         check(bool(np.isfinite(self.fps)) and self.fps > 0, f"clip {self.name!r}: fps must be > 0, got {self.fps}")
@@ -52,8 +54,7 @@ class Clip:
     def from_rotations(cls, name: str, fps: float, rotations: np.ndarray, translations: np.ndarray) -> Clip:
         """Build a clip from local rotations ``(F, J, 3, 3)`` and translations ``(F, J, 3)`` (or ``(J, 3)``)."""
         rotations = np.asarray(rotations, dtype=np.float64)
-        check(rotations.ndim == 4 and rotations.shape[-2:] == (3, 3),
-              f"clip {name!r}: rotations must be (F, J, 3, 3), got {rotations.shape}")
+        check_shape(rotations, "F J 3 3", name=f"clip {name!r}: rotations")
         translations = np.broadcast_to(np.asarray(translations, dtype=np.float64), (*rotations.shape[:2], 3))
         local = np.zeros((*rotations.shape[:2], 4, 4))
         local[..., :3, :3] = rotations

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
     import scipy.sparse
@@ -45,7 +45,7 @@ def vertex_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """
     p = np.asarray(positions, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    check(faces.ndim == 2 and faces.shape[1] == 3, f"faces must be (T, 3), got {faces.shape}")
+    check_shape(faces, "T 3", name="faces")
     fn = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])  # 2 * area * normal
     n = np.zeros_like(p)
     for c in range(3):
@@ -61,7 +61,7 @@ def normal_scatter(faces: np.ndarray, n_vertices: int) -> scipy.sparse.csr_matri
     import scipy.sparse as sp
 
     faces = np.asarray(faces, dtype=np.int64)
-    check(faces.ndim == 2 and faces.shape[1] == 3, f"faces must be (T, 3), got {faces.shape}")
+    check_shape(faces, "T 3", name="faces")
     t = np.repeat(np.arange(faces.shape[0]), 3)
     return sp.csr_matrix((np.ones(t.size, np.float32), (faces.reshape(-1), t)), shape=(n_vertices, faces.shape[0]))
 
@@ -79,7 +79,7 @@ def vertex_normals_soa(positions: np.ndarray, faces: np.ndarray, scatter: scipy.
         ``(B, 3, V)`` float32 unit normals; isolated vertices get ``(0, 0, 1)``.
     """
     p = np.asarray(positions, dtype=np.float32)
-    check(p.ndim == 3 and p.shape[1] == 3, f"positions must be (B, 3, V), got {p.shape}")
+    check_shape(p, "B 3 V", name="positions")
     b, _, v = p.shape
     faces = np.asarray(faces)
     if scatter is None:

@@ -11,6 +11,7 @@ import numpy as np
 
 from prt_torch.errors import check
 from prt_torch.exact import small_matmul
+from prt_torch.shapes import check_shape
 
 #: glTF/BVH (y up) -> library world (z up): ``(x, y, z) -> (x, -z, y)``.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -110,7 +111,7 @@ def rigid_inverse(m: np.ndarray) -> np.ndarray:
     """Inverse of rigid transforms ``(..., 4, 4)`` (rotation + translation): ``[R^T | -R^T t]`` in closed form,
     the same bits on every machine (a transpose and :func:`prt_torch.exact.small_matmul`; no LAPACK)."""
     m = np.asarray(m, dtype=np.float64)
-    check(m.ndim >= 2 and m.shape[-2:] == (4, 4), f"rigid transforms must be (..., 4, 4), got {m.shape}")
+    check_shape(m, "... 4 4", name="rigid transforms")
     rt = np.swapaxes(m[..., :3, :3], -1, -2)
     check(bool(np.allclose(small_matmul(rt, m[..., :3, :3]), np.eye(3), atol=1e-9)),
           "rigid_inverse: the rotation part is not orthonormal")

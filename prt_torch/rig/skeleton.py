@@ -11,6 +11,7 @@ import numpy as np
 
 from prt_torch.errors import check
 from prt_torch.exact import small_matmul
+from prt_torch.shapes import check_shape
 
 
 def check_parents(parents: np.ndarray) -> np.ndarray:
@@ -32,8 +33,7 @@ def forward_kinematics(parents: np.ndarray, local: np.ndarray) -> np.ndarray:
     joints (tens), vectorised over frames.
     """
     local = np.asarray(local, dtype=np.float64)
-    check(local.ndim >= 3 and local.shape[-2:] == (4, 4) and local.shape[-3] == len(parents),
-          f"local transforms must be (..., {len(parents)}, 4, 4), got {local.shape}")
+    check_shape(local, ("*", len(parents), 4, 4), name="local transforms")
     world = np.empty_like(local)
     for j, p in enumerate(parents):
         # fixed-order 4x4 products: FK feeds the bake, which is bit-exact across machines (prt_torch.exact)

@@ -15,6 +15,7 @@ import numpy as np
 
 from prt_torch.errors import check
 from prt_torch.exact import fixed_order_matmul
+from prt_torch.shapes import check_shape
 
 
 def check_skin_weights(joints: np.ndarray, weights: np.ndarray, num_joints: int, num_vertices: int | None = None,
@@ -25,8 +26,8 @@ def check_skin_weights(joints: np.ndarray, weights: np.ndarray, num_joints: int,
     """
     joints = np.asarray(joints)
     weights = np.asarray(weights)
-    check(joints.ndim == 2 and weights.shape == joints.shape,
-          f"skin joints and weights must both be (V, K), got {joints.shape} and {weights.shape}")
+    dims = check_shape(joints, "V K", name="skin joints")
+    check_shape(weights, "V K", name="skin weights", dims=dims)
     if num_vertices is not None:
         check(joints.shape[0] == num_vertices,
               f"skin weights have {joints.shape[0]} rows but the mesh has {num_vertices} vertices")

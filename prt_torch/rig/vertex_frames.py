@@ -28,6 +28,7 @@ import warnings
 import numpy as np
 
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 #: below this tangent-plane length of the PCA axis the fallback axis is blended in
 FALLBACK_BELOW = 0.3
@@ -63,7 +64,8 @@ def cluster_vertices(
     from threadpoolctl import threadpool_limits
 
     w = np.asarray(weights, dtype=np.float64)
-    if w.ndim != 2 or w.shape[0] == 0:
+    check_shape(w, "V J", name="skinning weights")
+    if w.shape[0] == 0:
         raise PrtError(f"skinning weights must have shape (V, J) with V > 0, got {w.shape}")
     if not np.isfinite(w).all():
         raise PrtError("skinning weights contain NaN or Inf")
@@ -136,8 +138,7 @@ def cluster_axes(rest_vertices: np.ndarray, labels: np.ndarray) -> np.ndarray:
     than two distinct vertices gets the world ``x`` axis.
     """
     x = np.asarray(rest_vertices, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise PrtError(f"rest vertices must have shape (V, 3), got {x.shape}")
+    check_shape(x, "V 3", name="rest vertices")
     labels = _check_labels(labels, x.shape[0])
     k = int(labels.max()) + 1
     count = np.bincount(labels, minlength=k).astype(np.float64)
@@ -188,10 +189,8 @@ def vertex_frames(
     rot = np.asarray(skin, dtype=np.float64)
     if rot.shape[-2:] == (4, 4):
         rot = rot[..., :3, :3]
-    if n.shape[-1] != 3 or n.ndim < 2:
-        raise PrtError(f"normals must have shape (..., V, 3), got {n.shape}")
-    if rot.ndim < 3 or rot.shape[-2:] != (3, 3) or rot.shape[:-3] != n.shape[:-2]:
-        raise PrtError(f"skin rotations must have shape {n.shape[:-2] + ('J', 3, 3)}, got {rot.shape}")
+    check_shape(n, "... V 3", name="normals")
+    check_shape(rot, (*n.shape[:-2], "J", 3, 3), name="skin rotations")
     if not (np.isfinite(n).all() and np.isfinite(rot).all()):
         raise PrtError("normals or skin matrices contain NaN or Inf")
     labels = _check_labels(labels, n.shape[-2])
@@ -287,7 +286,8 @@ def _normalise(x: np.ndarray) -> np.ndarray:
 
 def _check_labels(labels: np.ndarray, n_vertices: int) -> np.ndarray:
     labels = np.asarray(labels)
-    if labels.shape != (n_vertices,) or not np.issubdtype(labels.dtype, np.integer):
+    check_shape(labels, (n_vertices,), name="cluster labels")
+    if not np.issubdtype(labels.dtype, np.integer):
         raise PrtError(f"cluster labels must be ({n_vertices},) integers, got {labels.dtype} {labels.shape}")
     if n_vertices and labels.min() < 0:
         raise PrtError("cluster labels must be >= 0")

@@ -30,6 +30,7 @@ from typing import Union
 import torch
 
 from prt_torch.errors import PrtError, check
+from prt_torch.shapes import check_shape
 
 #: below this ``r`` the ``(1 - exp(-2 r)) / r`` factor uses its Taylor series ``2 - 2 r + 4/3 r^2``
 _SMALL_R = 1e-4
@@ -50,7 +51,7 @@ def _tensor(x: object, name: str, like: torch.Tensor | None = None) -> torch.Ten
 
 
 def _check_lobe(p: torch.Tensor, lam: torch.Tensor, mu: torch.Tensor, tag: str = "") -> None:
-    check(p.ndim >= 1 and p.shape[-1] == 3, f"SG{tag} axis must have shape (..., 3), got {tuple(p.shape)}")
+    check_shape(p, "... 3", name=f"SG{tag} axis")
     check(mu.ndim in (lam.ndim, lam.ndim + 1), f"SG{tag} amplitude must have the sharpness shape {tuple(lam.shape)} "
           f"or that plus a channel axis, got {tuple(mu.shape)}")
     if not bool(torch.isfinite(lam).all()) or not bool(torch.isfinite(p).all()) or not bool(torch.isfinite(mu).all()):
@@ -108,10 +109,9 @@ def sg_eval(axis: torch.Tensor, sharpness: torch.Tensor, amplitude: torch.Tensor
     """
     axis, dirs = _tensor(axis, "axis"), _tensor(dirs, "directions")
     sharpness, amplitude = _tensor(sharpness, "sharpness", axis), _tensor(amplitude, "amplitude", axis)
-    check(axis.ndim == 2 and axis.shape[1] == 3, f"sg_eval axis must be (K, 3), got {tuple(axis.shape)}")
-    check(sharpness.shape == axis.shape[:1], f"sg_eval sharpness must be ({axis.shape[0]},), got "
-          f"{tuple(sharpness.shape)}")
-    check(dirs.ndim == 2 and dirs.shape[1] == 3, f"sg_eval directions must be (N, 3), got {tuple(dirs.shape)}")
+    dims = check_shape(axis, "K 3", name="sg_eval axis")
+    check_shape(sharpness, "K", name="sg_eval sharpness", dims=dims)
+    check_shape(dirs, "N 3", name="sg_eval directions")
     _check_lobe(axis, sharpness, amplitude)
     check(bool(torch.isfinite(dirs).all()), "sg_eval directions contain NaN or Inf")
     dirs = dirs.to(axis.dtype)

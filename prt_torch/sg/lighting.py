@@ -53,6 +53,7 @@ import torch
 from prt_torch.errors import PrtError, check
 from prt_torch.light.envmap import EnvMap, latlong_pixel_coords, probe_pixel_coords
 from prt_torch.sg.lobes import SGLobes
+from prt_torch.shapes import check_shape
 
 #: Rec. 709 luminance weights
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -140,7 +141,7 @@ class SGLightFit:
     def eval(self, dirs: torch.Tensor | np.ndarray) -> np.ndarray:
         """Fitted radiance at unit directions ``(N, 3)`` -> ``(N, 3)`` float64 (sparse evaluation)."""
         d = np.asarray(dirs.detach().cpu().numpy() if isinstance(dirs, torch.Tensor) else dirs, dtype=np.float64)
-        check(d.ndim == 2 and d.shape[1] == 3, f"directions must be (N, 3), got {d.shape}")
+        check_shape(d, "N 3", name="directions")
         return evaluate_lobes(self.lobes, d)
 
 

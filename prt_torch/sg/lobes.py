@@ -28,6 +28,7 @@ import torch
 
 from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_write_bytes, atomic_write_json
+from prt_torch.shapes import check_shape
 
 #: tolerance on ``|axis| = 1``
 _UNIT_TOL = 1e-3
@@ -67,13 +68,10 @@ class SGLobes:
         dtype, device = self.axis.dtype, self.axis.device
         self.sharpness = _as_tensor(self.sharpness, "sharpness", dtype, device)
         self.amplitude = _as_tensor(self.amplitude, "amplitude", dtype, device)
-        check(self.axis.ndim == 2 and self.axis.shape[1] == 3, f"SG axis must have shape (K, 3), got "
-              f"{tuple(self.axis.shape)}")
-        k = self.axis.shape[0]
-        check(tuple(self.sharpness.shape) == (k,), f"SG sharpness must have shape ({k},), got "
-              f"{tuple(self.sharpness.shape)}")
-        check(tuple(self.amplitude.shape) == (k, 3), f"SG amplitude must have shape ({k}, 3), got "
-              f"{tuple(self.amplitude.shape)}")
+        dims = check_shape(self.axis, "K 3", name="SG axis")
+        check_shape(self.sharpness, "K", name="SG sharpness", dims=dims)
+        check_shape(self.amplitude, "K 3", name="SG amplitude", dims=dims)
+        k = dims["K"]
         for name, t in (("axis", self.axis), ("sharpness", self.sharpness), ("amplitude", self.amplitude)):
             if not bool(torch.isfinite(t).all()):
                 raise PrtError(f"SG {name} contains NaN or Inf ({int((~torch.isfinite(t)).sum())} value(s))")
@@ -145,7 +143,7 @@ class SGLobes:
     def rotated(self, rotation: torch.Tensor) -> SGLobes:
         """Lobes rotated by the ``(3, 3)`` matrix ``R`` (axes ``p -> R p``)."""
         r = _as_tensor(rotation, "rotation", self.dtype, self.device)
-        check(tuple(r.shape) == (3, 3), f"SG rotation must be (3, 3), got {tuple(r.shape)}")
+        check_shape(r, "3 3", name="SG rotation")
         return SGLobes(self.axis @ r.T, self.sharpness, self.amplitude)
 
     # ------------------------------------------------------------------------------------------ files

@@ -37,6 +37,7 @@ import torch
 
 from prt_torch.errors import PrtError, check
 from prt_torch.sg.lobes import SGLobes
+from prt_torch.shapes import check_shape
 
 LOG_HALF = math.log(0.5)
 
@@ -203,14 +204,12 @@ def shade_sg(light: SGLight, brdf_axis: torch.Tensor, brdf_sharpness: torch.Tens
     """
     v, j = brdf_sharpness.shape
     c = cone_vis.shape[-1]
-    check(brdf_axis.shape == (v, j, 3) and brdf_amplitude.shape == (v, j, 3),
-          f"shade_sg: BRDF lobes must be ({v}, {j}, 3), got {tuple(brdf_axis.shape)}, {tuple(brdf_amplitude.shape)}")
-    check(cone_axis.shape == (v, j, c, 3) and cone_half_angle.shape == (v, j, c),
-          f"shade_sg: cones must be ({v}, {j}, C, 3) and ({v}, {j}, C), got {tuple(cone_axis.shape)}, "
-          f"{tuple(cone_half_angle.shape)}")
+    check_shape(brdf_axis, (v, j, 3), name="shade_sg: BRDF lobe axes")
+    check_shape(brdf_amplitude, (v, j, 3), name="shade_sg: BRDF lobe amplitudes")
+    check_shape(cone_axis, (v, j, c, 3), name="shade_sg: cone axes")
+    check_shape(cone_half_angle, (v, j, c), name="shade_sg: cone half-angles")
     if peak_vis is not None:
-        check(peak_vis.shape == (v, light.n_peaks), f"shade_sg: peak visibility must be ({v}, {light.n_peaks}), "
-                                                    f"got {tuple(peak_vis.shape)}")
+        check_shape(peak_vis, (v, light.n_peaks), name="shade_sg: peak visibility")
     for name, t in (("BRDF sharpness", brdf_sharpness), ("cone visibility", cone_vis)):
         if not bool(torch.isfinite(t).all()):
             raise PrtError(f"shade_sg: {name} contains NaN or Inf")
