@@ -7,7 +7,9 @@ All inputs are numpy or torch arrays; results are Python floats or numpy arrays.
   of the visibility functions over the sphere.
 * :func:`transfer_error`: seed 000 section 6, ``E_j = int_{Omega_n} (T^g - T^s)^2 dw`` per vertex
   over the hemisphere about the normal (local ``+z`` for local-frame visibility), by quadrature.
-* :func:`psnr`: ``10 log10(max(truth)^2 / MSE)`` over all entries; :func:`rel_rmse`.
+* :func:`psnr`: ``10 log10(max(truth)^2 / MSE)`` over all entries (:func:`psnr_from_mse`, the one PSNR rule, also
+  for pooled sums and images); :func:`rel_rmse`.
+* :func:`evenly_spaced_indices`: the one rule picking ``n`` evenly spaced frames (rows) of ``n_total``.
 * :func:`jitter`: mean absolute frame-to-frame change of the error, relative to the truth's scale.
 """
 
@@ -74,12 +76,24 @@ def transfer_error(pred: Any, truth: Any) -> np.ndarray:
     return np.einsum("...i,ij,...j->...", d, gram, d)
 
 
+def psnr_from_mse(mse: float, peak: float = 1.0) -> float:
+    """``10 log10(peak^2 / mse)`` in dB (``peak`` at least 1e-15), ``inf`` for ``mse <= 0``: the one PSNR rule
+    (:func:`psnr`, pooled radiance and image errors of :mod:`prt_torch.eval.shipping`)."""
+    if mse <= 0:
+        return float("inf")
+    return float(10 * np.log10(max(peak, 1e-15) ** 2 / mse))
+
+
 def psnr(pred: Any, truth: Any) -> float:
     """``10 log10(max(truth)^2 / MSE)`` over all entries (dB)."""
     p, t = _pair(pred, truth, "psnr")
-    mse = float(((p - t) ** 2).mean())
-    peak = float(t.max()) ** 2
-    return float("inf") if mse == 0 else float(10 * np.log10(max(peak, 1e-30) / mse))
+    return psnr_from_mse(float(((p - t) ** 2).mean()), abs(float(t.max())))
+
+
+def evenly_spaced_indices(n_total: int, n_pick: int) -> np.ndarray:
+    """``(n_pick,)`` int64 indices into ``n_total`` items, evenly spaced from the first to the last (rounded to the
+    nearest; repeated when ``n_pick > n_total``)."""
+    return np.linspace(0, n_total - 1, n_pick).round().astype(np.int64)
 
 
 def rel_rmse(pred: Any, truth: Any) -> float:

@@ -34,9 +34,12 @@ if TYPE_CHECKING:
 
 
 def is_deformable(attrs_or_cfg: Any) -> bool:
-    """Whether a run config (``cloth`` section set) or a dataset's attrs (``deformable: true``) is deformable."""
+    """Whether a run config (``cloth`` section set) or a dataset's attrs (``deformable: true``, or a recorded config
+    with a ``cloth:`` section) is deformable: the one rule (export, compare, fit and the bake ask it)."""
     if isinstance(attrs_or_cfg, dict):
-        return bool(attrs_or_cfg.get("deformable", False))
+        from prt_torch.bake.store import recorded_config
+
+        return bool(attrs_or_cfg.get("deformable", False)) or bool(recorded_config(attrs_or_cfg).get("cloth"))
     return getattr(attrs_or_cfg, "cloth", None) is not None
 
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 
 def require_embreex() -> tuple[Any, Any]:
@@ -53,9 +54,9 @@ class RayScene:
         rtcore_scene, mesh_construction = require_embreex()
         vertices = np.asarray(vertices)
         faces = np.asarray(faces)
-        if vertices.ndim != 2 or vertices.shape[1] != 3:
-            raise PrtError(f"mesh vertices must have shape (V, 3), got {vertices.shape}")
-        if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
+        check_shape(vertices, "V 3", name="mesh vertices")
+        check_shape(faces, "T 3", name="mesh faces")
+        if not np.issubdtype(faces.dtype, np.integer):
             raise PrtError(f"mesh faces must be an integer array of shape (T, 3), got {faces.dtype} {faces.shape}")
         if not np.isfinite(vertices).all():
             raise PrtError("mesh vertices contain NaN or Inf")
@@ -86,8 +87,8 @@ class RayScene:
 def _rays(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     o = np.ascontiguousarray(origins, dtype=np.float32)
     d = np.ascontiguousarray(directions, dtype=np.float32)
-    if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
-        raise PrtError(f"ray origins and directions must both have shape (N, 3), got {o.shape} and {d.shape}")
+    dims = check_shape(o, "N 3", name="ray origins")
+    check_shape(d, "N 3", name="ray directions", dims=dims)
     return o, d
 
 

@@ -520,18 +520,10 @@ class _progress:
     def __enter__(self) -> Callable[[int, int, int, float], None]:
         if not self.enabled:
             return lambda *a: None
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
+        from prt_torch.progress import progress_bar
 
-        self._progress = Progress(TextColumn("bake ({task.fields[backend]})"), BarColumn(), MofNCompleteColumn(),
-                                  TextColumn("frames"), TextColumn("{task.fields[rate]}"), TimeElapsedColumn(),
-                                  TimeRemainingColumn())
+        self._progress = progress_bar("bake ({task.fields[backend]})", ("frames", "{task.fields[rate]}"),
+                                      remaining=True)
         self._progress.start()
         self._task = self._progress.add_task("bake", total=self.total, completed=self.completed,
                                              backend=self.backend, rate="")

@@ -51,6 +51,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError
+from prt_torch.metrics import evenly_spaced_indices
 
 if TYPE_CHECKING:
     from prt_torch.rig.character import Character
@@ -94,6 +95,13 @@ def conventions(below_horizon: str = "zero") -> dict[str, str]:
     if below_horizon not in VISIBILITY_CONVENTIONS:
         raise PrtError(f"below_horizon must be one of {sorted(VISIBILITY_CONVENTIONS)}, got {below_horizon!r}")
     return {**CONVENTIONS, "visibility": VISIBILITY_CONVENTIONS[below_horizon], "below_horizon": below_horizon}
+
+
+def recorded_config(attrs: Any) -> dict[str, Any]:
+    """The run config a store's attributes record (``attrs["config"]``, the bake's config as a plain dict; ``{}``
+    when absent): the one way to read it (:meth:`BakedDataset.recorded_config`)."""
+    cfg = (attrs or {}).get("config") or {}
+    return dict(cfg) if isinstance(cfg, dict) else {}
 
 
 def below_horizon_of(attrs: dict[str, Any] | None) -> str:
@@ -691,7 +699,7 @@ class BakedDataset:
                 per = max(2, -(-max_frames // len(np.unique(ids))))
                 idx = np.sort(np.concatenate([idx[ids == c][:per] for c in np.unique(ids)]))
             else:
-                idx = idx[np.linspace(0, len(idx) - 1, max_frames).round().astype(np.int64)]
+                idx = idx[evenly_spaced_indices(len(idx), max_frames)]
         data = self.rows(idx, ("pose", "visibility", *extra))
         pose = data.pop("pose").astype(np.float32)
         vis = data.pop("visibility").astype(np.float32)
@@ -712,6 +720,14 @@ class BakedDataset:
     def heldout_mask(self) -> np.ndarray:
         """``(F,)`` bool held-out frames."""
         return self.split_mask("heldout")
+
+    def recorded_config(self) -> dict[str, Any]:
+        """The run config recorded by the bake (:func:`recorded_config` of :attr:`attrs`; ``{}`` when absent)."""
+        return recorded_config(self.attrs)
+
+    def recorded_fps(self) -> float | None:
+        """The frame rate the bake posed the clips at (the recorded ``character.fps``; None: each clip's own)."""
+        return (self.recorded_config().get("character") or {}).get("fps")
 
     def character(self) -> Character:
         """The baked character of the run directory holding the dataset (hash-checked)."""

@@ -50,6 +50,7 @@ from scipy.spatial import cKDTree
 from prt_torch.bake.trace import RayHits, RaySet
 from prt_torch.bake.transfer import occlusion_transfer
 from prt_torch.errors import PrtError, check
+from prt_torch.shapes import check_shape
 
 
 @dataclass(frozen=True)
@@ -160,8 +161,8 @@ def vertex_areas(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(V,)`` float64: a third of the area of every triangle touching each vertex (world units^2)."""
     positions = np.asarray(positions, dtype=np.float64)
     faces = np.asarray(faces)
-    check(positions.ndim == 2 and positions.shape[1] == 3, f"positions must have shape (V, 3), got {positions.shape}")
-    check(faces.ndim == 2 and faces.shape[1] == 3, f"faces must have shape (T, 3), got {faces.shape}")
+    check_shape(positions, "V 3", name="positions")
+    check_shape(faces, "T 3", name="faces")
     p = positions[faces]
     a = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     return np.bincount(faces.reshape(-1), weights=np.repeat(a / 3.0, 3), minlength=len(positions))
@@ -176,7 +177,7 @@ def dipole_kernel(positions: np.ndarray, areas: np.ndarray, p: DipoleParams) -> 
     x = np.asarray(positions, dtype=np.float64) * p.scale
     a = np.asarray(areas, dtype=np.float64) * p.scale**2
     V = x.shape[0]
-    check(a.shape == (V,), f"vertex areas must have shape ({V},), got {a.shape}")
+    check_shape(a, (V,), name="vertex areas")
     check(bool(np.isfinite(x).all()) and bool(np.isfinite(a).all()) and bool((a >= 0).all()),
           "subsurface positions and areas must be finite (areas >= 0)")
     pairs = cKDTree(x).query_pairs(p.radius_mm, output_type="ndarray")  # (P, 2), i < j
@@ -203,7 +204,7 @@ def single_scatter_transfer(frames: np.ndarray, rays: RaySet, occluded: np.ndarr
     frames = np.asarray(frames)
     V = frames.shape[0]
     R = rays.n_rays
-    check(occluded.shape == (R, V), f"ray occlusion must have shape ({R}, {V}), got {occluded.shape}")
+    check_shape(occluded, (R, V), name="ray occlusion")
     weight = (math.pi * single_scatter_weight(rays.cos, p)).astype(np.float32)  # direct_transfer scales by 2/R
     return occlusion_transfer(frames, rays.local, rays.phi, occluded, weight, order)
 
@@ -223,7 +224,7 @@ def subsurface_transfer(positions: np.ndarray, areas: np.ndarray, irradiance_tra
         raise PrtError(f"subsurface parameters must be DipoleParams, got {type(params).__name__}")
     t = np.asarray(irradiance_transfer)
     V = np.asarray(positions).shape[0]
-    check(t.ndim == 2 and t.shape[0] == V, f"irradiance transfer must have shape ({V}, C), got {t.shape}")
+    check_shape(t, (V, "C"), name="irradiance transfer")
     check(bool(np.isfinite(t).all()), "irradiance transfer contains NaN or Inf")
     K = dipole_kernel(positions, areas, params)
     out = (1.0 - params.F_dr) ** 2 * (K @ t.astype(np.float64))

@@ -17,6 +17,7 @@ from prt_torch.bake.transfer import bounce_operator, direct_transfer, gather_ent
 from prt_torch.bake.visibility import project_visibility, projection_table
 from prt_torch.conventions import BELOW_HORIZON
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 
 def check_below_horizon(value: object) -> str:
@@ -126,10 +127,8 @@ def trace_frame(
     positions = np.asarray(positions)
     frames = np.asarray(frames)
     V = positions.shape[0]
-    if positions.ndim != 2 or positions.shape[1] != 3:
-        raise PrtError(f"positions must have shape (V, 3), got {positions.shape}")
-    if frames.shape != (V, 3, 3):
-        raise PrtError(f"frames must have shape ({V}, 3, 3), got {frames.shape}")
+    check_shape(positions, "V 3", name="positions")
+    check_shape(frames, (V, 3, 3), name="frames")
     if not np.isfinite(positions).all():
         raise PrtError("posed positions contain NaN or Inf")
     if not np.isfinite(frames).all():

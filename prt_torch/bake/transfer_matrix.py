@@ -50,6 +50,7 @@ from prt_torch.errors import PrtError
 from prt_torch.sh.basis import check_order, sh_basis
 from prt_torch.sh.rotation import sh_rotation
 from prt_torch.sh.zonal import clamped_cosine_zh, hemisphere_zh, zh_to_sh
+from prt_torch.shapes import check_shape
 
 #: rays per SH evaluation block (bounds the (rays, Vb, C) temporaries)
 _SUB_RAYS = 1 << 16
@@ -81,21 +82,19 @@ def _check(frames: np.ndarray, hits: RayHits, rays: RaySet, faces: np.ndarray, o
            albedo: float) -> None:
     check_order(order, MAX_MATRIX_ORDER)
     V = frames.shape[0] if frames.ndim == 3 else -1
-    if frames.ndim != 3 or frames.shape[1:] != (3, 3):
-        raise PrtError(f"frames must have shape (V, 3, 3), got {frames.shape}")
+    check_shape(frames, "V 3 3", name="frames")
     if not isinstance(hits, RayHits):
         raise PrtError(f"transfer matrices need the frame's ray hits (trace_frame keep_hits=True), got "
                        f"{type(hits).__name__}")
-    if hits.prim.shape != (rays.n_rays, V):
-        raise PrtError(f"ray hits must have shape ({rays.n_rays}, {V}) (rays, vertices), got {hits.prim.shape}")
+    check_shape(hits.prim, (rays.n_rays, V), name="ray hits (rays, vertices)")
     if rays.phi.shape != (V,):
         raise PrtError(f"ray set was made for {rays.phi.shape[0]} vertices, frames have {V}")
     if not isinstance(bounces, int | np.integer) or not 0 <= bounces <= 2:
         raise PrtError(f"matrix_bounces must be 0, 1 or 2, got {bounces!r}")
     if not 0 < albedo < 1:
         raise PrtError(f"interreflection albedo must be in (0, 1), got {albedo}")
-    if bounces and (faces.ndim != 2 or faces.shape[1] != 3):
-        raise PrtError(f"faces must have shape (T, 3), got {faces.shape}")
+    if bounces:
+        check_shape(faces, "T 3", name="faces")
 
 
 def hit_diffuse_transfer(frames: np.ndarray, hits: RayHits, rays: RaySet, faces: np.ndarray, order: int,

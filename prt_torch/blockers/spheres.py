@@ -34,6 +34,7 @@ import numpy as np
 
 from prt_torch.errors import check
 from prt_torch.io import atomic_write_bytes, read_npz_with_meta
+from prt_torch.shapes import check_shape
 
 FORMAT = "prt_torch.spheres/1"
 DEFAULT_SPHERES = 48
@@ -57,8 +58,8 @@ class SphereSet:
         check(bone.ndim == 1 and bone.size >= 1 and np.issubdtype(bone.dtype, np.integer),
               f"sphere bones must be a non-empty (S,) integer array, got {bone.shape} {bone.dtype}")
         s = bone.size
-        check(center.shape == (s, 3), f"sphere centres must be ({s}, 3), got {center.shape}")
-        check(radius.shape == (s,), f"sphere radii must be ({s},), got {radius.shape}")
+        check_shape(center, (s, 3), name="sphere centres")
+        check_shape(radius, (s,), name="sphere radii")
         check(bool(np.isfinite(center).all()), "sphere centres contain NaN or Inf")
         check(bool(np.isfinite(radius).all() and (radius > 0).all()), "sphere radii must be finite and > 0")
         check(bool((bone >= 0).all()), "sphere bones must be >= 0")
@@ -147,8 +148,8 @@ def fit_spheres(character: Any, n_spheres: int = DEFAULT_SPHERES, seed: int = 0,
     check(isinstance(radius_quantile, (int, float)) and 0.0 <= radius_quantile <= 1.0,
           f"radius_quantile must be in [0, 1], got {radius_quantile!r}")
     verts = np.asarray(character.rest_vertices, dtype=np.float64)
-    check(verts.ndim == 2 and verts.shape[1] == 3 and verts.shape[0] >= 1, f"rest vertices must be (V, 3), got "
-          f"{verts.shape}")
+    check_shape(verts, "V 3", name="rest vertices")
+    check(verts.shape[0] >= 1, f"rest vertices must be (V, 3), got {verts.shape}")
     check(bool(np.isfinite(verts).all()), "rest vertices contain NaN or Inf")
     n_spheres = int(n_spheres)
     check(n_spheres <= verts.shape[0], f"sphere count {n_spheres} exceeds the {verts.shape[0]} rest vertices")
@@ -187,7 +188,7 @@ def pose_spheres(spheres: SphereSet, skin_mats: np.ndarray) -> np.ndarray:
         skin_mats: ``(..., J, 4, 4)`` skinning matrices ``world_j @ inverse_bind_j`` (``Poses.skin``).
     """
     m = np.asarray(skin_mats)
-    check(m.ndim >= 3 and m.shape[-2:] == (4, 4), f"skin matrices must be (..., J, 4, 4), got {m.shape}")
+    check_shape(m, "... J 4 4", name="skin matrices")
     check(int(spheres.bone.max()) < m.shape[-3],
           f"sphere bone {int(spheres.bone.max())} out of range for {m.shape[-3]} skin matrices")
     check(bool(np.isfinite(m).all()), "skin matrices contain NaN or Inf")

@@ -312,6 +312,6 @@ class _NoBar:
 def _progress(enabled: bool) -> Any:
     if not enabled:
         return _NoBar()
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from prt_torch.progress import progress_bar
 
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    return progress_bar(elapsed=False, remaining=True)

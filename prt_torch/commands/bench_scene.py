@@ -115,7 +115,7 @@ def _heldout_clip(run: Any) -> str:
     from prt_torch.errors import PrtError
 
     try:
-        cfg = run.dataset().attrs.get("config", {}) or {}
+        cfg = run.dataset().recorded_config()
         held = (cfg.get("character", {}) or {}).get("heldout_clips") or []
         if held:
             from prt_torch.rig.config import as_clip_range

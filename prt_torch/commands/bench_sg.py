@@ -47,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
     from prt_torch.compare.reference import light_spec, spec_envmap
     from prt_torch.errors import PrtError
+    from prt_torch.metrics import evenly_spaced_indices
     from prt_torch.rig.builtin import make_character
     from prt_torch.sg.brdf_fit import fit_brdf_sg
     from prt_torch.sg.shading import sg_light_from_env
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     if args.clip not in ch.clips:
         raise PrtError(f"--clip: unknown clip {args.clip!r}; available: {sorted(ch.clips)}")
     poses = ch.pose(args.clip)
-    idx = np.linspace(0, poses.num_frames - 1, args.frames).round().astype(int)
+    idx = evenly_spaced_indices(poses.num_frames, args.frames)
     pos_all, nrm_all = ch.skin_mesh(poses.skin[idx])
     nrm_all = nrm_all / np.linalg.norm(nrm_all, axis=-1, keepdims=True)
     faces = np.asarray(ch.faces)

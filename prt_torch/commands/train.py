@@ -22,7 +22,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from prt_torch.commands import _validate as V
     from prt_torch.config import load_config
@@ -30,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.fit.config import KINDS
     from prt_torch.fit.device import DEVICES, resolve_device
     from prt_torch.fit.train import dataset_of, train_dataset
+    from prt_torch.progress import progress_bar
     from prt_torch.rundir import RunDir
 
     kinds = V.names(args.kinds, "--kinds", KINDS, what="model kind") if args.kinds is not None else None
@@ -55,8 +55,7 @@ def run(args: argparse.Namespace) -> int:
     if not Path(dataset).exists():
         raise PrtError(f"dataset not found: {dataset} (run `prt bake` first, or pass --dataset)")
     console = Console(stderr=True)
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=console,
-                  transient=True) as progress:
+    with progress_bar(counted=False, spinner=True, console=console, transient=True) as progress:
         metrics = train_dataset(dataset, run, tcfg, progress)
     if args.json:
         print(json.dumps(metrics, indent=2, sort_keys=True))

@@ -115,8 +115,7 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
     gp = shexp_graph_path(run)
     if gp is None:
         raise PrtError(f"{run.path}: its scene needs the shexp graph and blocker spheres: run `prt export {run.path}`")
-    fps = float((ctx.dataset.attrs.get("config") or {}).get("character", {}).get("fps") or
-                ctx.character.clip(fs.clips[0]).fps)
+    fps = float(ctx.dataset.recorded_fps() or ctx.character.clip(fs.clips[0]).fps)
     actors, bundles = _actors(ctx, scene, fs.clips[0], fps, threads)
     n_f = fs.n_frames
     ground = scene_ground(scene.ground, actors, fps, int(max(fs.frame_index) + 1)) if scene.ground else None

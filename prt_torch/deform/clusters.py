@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 
 def spatial_clusters(rest_vertices: np.ndarray, n_clusters: int, seed: int) -> np.ndarray:
@@ -31,8 +32,8 @@ def spatial_clusters(rest_vertices: np.ndarray, n_clusters: int, seed: int) -> n
     from threadpoolctl import threadpool_limits
 
     x = np.asarray(rest_vertices, dtype=np.float64)
-    check(x.ndim == 2 and x.shape[1] == 3 and x.shape[0] > 0,
-          f"rest vertices must have shape (V, 3) with V > 0, got {x.shape}")
+    check_shape(x, "V 3", name="rest vertices")
+    check(x.shape[0] > 0, f"rest vertices must have shape (V, 3) with V > 0, got {x.shape}")
     check(bool(np.isfinite(x).all()), "rest vertices contain NaN or inf")
     check(int(n_clusters) >= 1, f"n_clusters must be >= 1, got {n_clusters}")
     k = min(int(n_clusters), int(np.unique(x, axis=0).shape[0]))

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 
 @numba.njit(cache=True, nogil=True, fastmath={"contract"})
@@ -64,9 +65,8 @@ class LocalOffsetsSoA:
         p = np.ascontiguousarray(positions_soa, dtype=np.float32)
         f = np.ascontiguousarray(frames_soa, dtype=np.float32)
         v, s = self.n_vertices, self.n_samples
-        if p.ndim != 3 or p.shape[1:] != (3, v) or f.shape != (p.shape[0], 9, v):
-            raise PrtError(f"local offsets need positions (B, 3, {v}) and frames (B, 9, {v}), got {p.shape} and "
-                           f"{f.shape}")
+        dims = check_shape(p, ("B", 3, v), name="local offsets: positions")
+        check_shape(f, ("B", 9, v), name="local offsets: frames", dims=dims)
         b = p.shape[0]
         out = np.empty((b, 3 * s, v), np.float32)
         for i in range(b):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from prt_torch.errors import PrtError, check
+from prt_torch.shapes import check_shape
 
 #: a face whose area is below this fraction of the squared bounding-box diagonal is degenerate
 DEGENERATE_AREA = 1e-14
@@ -18,8 +19,8 @@ DEGENERATE_AREA = 1e-14
 
 def _faces(faces: np.ndarray, what: str) -> np.ndarray:
     f = np.asarray(faces)
-    check(f.ndim == 2 and f.shape[1] == 3 and f.shape[0] > 0, f"{what}: faces must have shape (T, 3) with T > 0, "
-          f"got {f.shape}")
+    check_shape(f, "T 3", name=f"{what}: faces")
+    check(f.shape[0] > 0, f"{what}: faces must have shape (T, 3) with T > 0, got {f.shape}")
     check(np.issubdtype(f.dtype, np.integer), f"{what}: faces must be integers, got {f.dtype}")
     return f.astype(np.int64)
 
@@ -58,7 +59,7 @@ def check_deformable_mesh(vertices: np.ndarray, faces: np.ndarray, what: str) ->
     traversed in opposite directions). Boundaries and several components are allowed.
     """
     v = np.asarray(vertices)
-    check(v.ndim == 2 and v.shape[1] == 3, f"{what}: vertices must have shape (V, 3), got {v.shape}")
+    check_shape(v, "V 3", name=f"{what}: vertices")
     check(np.issubdtype(v.dtype, np.number), f"{what}: vertices must be numbers, got {v.dtype}")
     bad = ~np.isfinite(v).all(axis=1)
     check(not bad.any(), f"{what}: {int(bad.sum())} vertex positions are NaN or inf (first: vertex "

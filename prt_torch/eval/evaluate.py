@@ -331,10 +331,9 @@ class _Bar:
     def __init__(self, enabled: bool, total: int, label: str) -> None:
         self._p = None
         if enabled and total > 0:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+            from prt_torch.progress import progress_bar
 
-            self._p = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                               TimeElapsedColumn(), transient=True)
+            self._p = progress_bar(transient=True)
             self._t = self._p.add_task(label, total=total)
             self._p.start()
 

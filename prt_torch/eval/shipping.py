@@ -43,7 +43,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import check
+from prt_torch.metrics import evenly_spaced_indices, psnr_from_mse
 
 if TYPE_CHECKING:
     import torch
@@ -305,9 +306,7 @@ class RadianceStats:
 
     @property
     def psnr(self) -> float:
-        if self.sse == 0:
-            return float("inf")
-        return float(10 * np.log10(max(self.peak, 1e-15) ** 2 / (self.sse / max(self.n, 1))))
+        return psnr_from_mse(self.sse / max(self.n, 1), self.peak)
 
 
 @dataclass
@@ -326,11 +325,6 @@ class ImageStats:
         if self.n == 0:
             return None
         return psnr_from_mse(self.sse / self.n)
-
-
-def psnr_from_mse(mse: float) -> float:
-    """``10 log10(1 / mse)`` (peak 1.0), ``inf`` for ``mse == 0``."""
-    return float("inf") if mse <= 0 else float(-10 * np.log10(mse))
 
 
 def image_sse(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> tuple[float, int]:
@@ -482,7 +476,7 @@ def evenly_spaced(n_total: int, n_pick: int, must: Sequence[int] = ()) -> np.nda
     """``min(n_pick, n_total)`` sorted distinct indices in ``[0, n_total)``, evenly spaced, including ``must``."""
     if n_total <= 0 or n_pick <= 0:
         return np.zeros(0, dtype=np.int64)
-    base = np.linspace(0, n_total - 1, min(n_pick, n_total)).round().astype(np.int64)
+    base = evenly_spaced_indices(n_total, min(n_pick, n_total))
     idx = np.unique(np.concatenate([base, np.asarray(must, dtype=np.int64)]))
     if len(idx) > n_pick and len(must):
         keep = set(int(m) for m in must)

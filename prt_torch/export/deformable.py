@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import MissingArtifact, check
 from prt_torch.export.deform_data import write_deform_data
 from prt_torch.rundir import RunDir
 
@@ -58,22 +58,21 @@ class DeformSpec:
 def run_config_dict(run: RunDir) -> dict[str, Any]:
     """The run config recorded by the bake (the dataset's ``config`` attrs; ``{}`` when absent)."""
     try:
-        cfg = run.dataset().attrs.get("config", {}) or {}
-    except PrtError:
+        return run.dataset().recorded_config()
+    except MissingArtifact:
         return {}
-    return dict(cfg) if isinstance(cfg, dict) else {}
 
 
 def is_deformable(run: RunDir) -> bool:
-    """Whether the run's dataset is a deformable one (:func:`prt_torch.bake.deformable.is_deformable` of its attrs,
-    or its recorded config has a ``cloth:`` section)."""
+    """Whether the run's dataset is a deformable one (:func:`prt_torch.bake.deformable.is_deformable` of its attrs;
+    False without a dataset)."""
     from prt_torch.bake.deformable import is_deformable as attrs_deformable
 
     try:
         attrs = dict(run.dataset().attrs)
-    except PrtError:
+    except MissingArtifact:
         return False
-    return attrs_deformable(attrs) or bool(run_config_dict(run).get("cloth"))
+    return attrs_deformable(attrs)
 
 
 def deform_spec(run: RunDir) -> DeformSpec:

@@ -43,6 +43,7 @@ import numpy as np
 
 from prt_torch.errors import ArtifactError, check
 from prt_torch.io import atomic_write_json
+from prt_torch.metrics import evenly_spaced_indices
 from prt_torch.rundir import GRAPHS, RunDir, file_sha256, stage_key
 
 FORMAT = "prt_torch.export/3"  # /2: file_sha256, model_file (the commit record); /3: precision, cluster-sorted fused
@@ -96,7 +97,7 @@ def heldout_inputs(run: RunDir, n_max: int = 8) -> dict[str, np.ndarray]:
     if rows.size == 0:
         rows = np.flatnonzero(ds.done)[-n_max:]
     check(rows.size > 0, f"{ds.path}: no finished frames to check parity on")
-    rows = np.unique(rows[np.linspace(0, rows.size - 1, min(n_max, rows.size)).round().astype(int)])
+    rows = np.unique(rows[evenly_spaced_indices(rows.size, min(n_max, rows.size))])
     data = ds.rows(rows, ("pose", "frames", "positions"))
     return {k: np.asarray(v, dtype=np.float32) for k, v in data.items()} | {"rows": rows}
 

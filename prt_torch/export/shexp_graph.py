@@ -85,6 +85,7 @@ def blocker_count(run: RunDir | Mapping[str, Any]) -> int:
     """The run's sphere count: the bake config's ``blockers`` (recorded in the dataset's ``config`` attrs; ``run``
     is the run directory or those attrs), :data:`prt_torch.blockers.spheres.DEFAULT_SPHERES` for datasets baked
     before the field existed."""
+    from prt_torch.bake.store import recorded_config
     from prt_torch.blockers.spheres import DEFAULT_SPHERES
 
     if isinstance(run, RunDir):
@@ -94,7 +95,7 @@ def blocker_count(run: RunDir | Mapping[str, Any]) -> int:
             return DEFAULT_SPHERES
     else:
         attrs = run
-    cfg = attrs.get("config", {}) or {}
+    cfg = recorded_config(attrs)
     return int((cfg.get("bake", {}) or {}).get("blockers", DEFAULT_SPHERES) or DEFAULT_SPHERES)
 
 

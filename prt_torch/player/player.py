@@ -530,10 +530,9 @@ class _progress:
         return super().__new__(cls)
 
     def __init__(self, enabled: bool, total: int, label: str) -> None:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+        from prt_torch.progress import progress_bar
 
-        self._p = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                           TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(), transient=False)
+        self._p = progress_bar(fields=("{task.fields[fps]:.1f} frames/s",), transient=False)
         self._t = self._p.add_task(label, total=total, fps=0.0)
         self._t0 = time.perf_counter()
         self._n = 0

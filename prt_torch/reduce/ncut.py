@@ -38,6 +38,7 @@ import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
 from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 DENSE_MAX = 2048  # graphs up to this many nodes use the dense generalized solver (scipy.linalg.eigh)
 _EPS_LINK = 1e-6
@@ -173,7 +174,7 @@ def affinity_from_sq_dists(dt: np.ndarray, dp: np.ndarray, t_scale: float = 1.0,
     """
     dt = np.asarray(dt, dtype=np.float64)
     dp = np.asarray(dp, dtype=np.float64)
-    check(dt.ndim == 2 and dt.shape[0] == dt.shape[1], f"affinity: dt must be (P, P), got {dt.shape}")
+    check_shape(dt, "P P", name="affinity: dt")
     check(dp.shape == dt.shape, f"affinity: dp shape {dp.shape} != dt shape {dt.shape}")
     check(bool(np.isfinite(dt).all() and np.isfinite(dp).all()), "affinity: distances contain NaN or Inf")
     check(t_scale > 0 and p_scale > 0, f"affinity: scales must be > 0, got {t_scale}, {p_scale}")
@@ -202,9 +203,8 @@ def segment_affinity(t_seg: np.ndarray, bones: np.ndarray, adjacency: Any = None
     """
     t = np.asarray(t_seg)
     b = np.asarray(bones)
-    check(t.ndim >= 2, f"segment_affinity: t_seg must be (P, n_l, ...), got shape {t.shape}")
-    check(b.ndim >= 2 and b.shape[0] == t.shape[0],
-          f"segment_affinity: bones must be (P, B, ...) with P = {t.shape[0]}, got shape {b.shape}")
+    dims = check_shape(t, "P n_l ...", name="segment_affinity: t_seg")
+    check_shape(b, "P B ...", name="segment_affinity: bones", dims=dims)
     check(t.shape[0] >= 2, f"segment_affinity: need at least 2 poses, got {t.shape[0]}")
     check(bool(np.isfinite(t).all()), "segment_affinity: t_seg contains NaN or Inf")
     check(bool(np.isfinite(b).all()), "segment_affinity: bones contain NaN or Inf")
@@ -219,10 +219,10 @@ def segment_sq_dists_streamed(stream: Any, segments: np.ndarray, block: int = 10
     ``P x block x C^2`` floats plus the ``(n_r, P, P)`` Gram matrices. ``segments (V,)``: labels ``0 .. n_r-1``.
     """
     shape = tuple(stream.shape)
-    check(len(shape) >= 2, f"segment distances: stream must be (P, V, ...), got shape {shape}")
+    check_shape(stream, "P V ...", name="segment distances: stream")
     p, v = shape[0], shape[1]
     seg = np.asarray(segments)
-    check(seg.shape == (v,), f"segment distances: segments must be ({v},), got {seg.shape}")
+    check_shape(seg, (v,), name="segment distances: segments")
     check(bool(np.issubdtype(seg.dtype, np.integer)) and (seg.size == 0 or seg.min() >= 0),
           "segment distances: segments must be non-negative integers")
     n_r = int(seg.max()) + 1
@@ -249,7 +249,7 @@ def cluster_segments(stream: Any, segments: np.ndarray, bones: np.ndarray, leaf_
     """
     b = np.asarray(bones, dtype=np.float64)
     p = int(stream.shape[0])
-    check(b.ndim >= 2 and b.shape[0] == p, f"cluster_segments: bones must be (P={p}, B, ...), got shape {b.shape}")
+    check_shape(b, (p, "B", "..."), name="cluster_segments: bones")
     check(bool(np.isfinite(b).all()), "cluster_segments: bones contain NaN or Inf")
     dt = segment_sq_dists_streamed(stream, segments, block)
     dp = sq_dists(b)

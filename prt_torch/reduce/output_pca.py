@@ -21,12 +21,13 @@ import numpy as np
 
 from prt_torch.errors import PrtError, check
 from prt_torch.reduce.pca import PCA, components_for_variance
+from prt_torch.shapes import check_shape
 
 
 def check_visibility(y: np.ndarray, name: str = "visibility") -> np.ndarray:
     """Validate ``y (F, V, C)``: finite, 3-D, ``C`` a perfect square."""
     y = np.asarray(y)
-    check(y.ndim == 3, f"{name}: expected a (F, V, C) array, got shape {y.shape}")
+    check_shape(y, "F V C", name=name)
     c = y.shape[2]
     n = int(round(np.sqrt(c)))
     check(n * n == c and c > 0, f"{name}: last axis must be order**2 SH coefficients, got {c}")
@@ -37,8 +38,7 @@ def check_visibility(y: np.ndarray, name: str = "visibility") -> np.ndarray:
 def check_clusters(cluster: np.ndarray, n_vertices: int) -> np.ndarray:
     """Validate ``cluster (V,)`` labels; returns them relabelled to ``0..G-1`` (int64)."""
     cluster = np.asarray(cluster)
-    check(cluster.ndim == 1 and cluster.shape[0] == n_vertices,
-          f"cluster: expected ({n_vertices},) labels, got shape {cluster.shape}")
+    check_shape(cluster, (n_vertices,), name="cluster labels")
     check(np.issubdtype(cluster.dtype, np.integer), f"cluster: expected integer labels, got {cluster.dtype}")
     _, relabelled = np.unique(cluster, return_inverse=True)
     return relabelled.astype(np.int64)
@@ -120,8 +120,7 @@ class ClusterPCA:
     def reduce(self, y: np.ndarray) -> np.ndarray:
         """``(F, V, C) -> (F, G, Kmax)`` (zeros in padded slots)."""
         y = check_visibility(y)
-        check(y.shape[1:] == (self.n_vertices, self.n_coeffs),
-              f"visibility: expected (F, {self.n_vertices}, {self.n_coeffs}), got {y.shape}")
+        check_shape(y, ("F", self.n_vertices, self.n_coeffs), name="visibility")
         f = y.shape[0]
         out = np.zeros((f, self.n_groups, self.width))
         for g, (m, p) in enumerate(zip(self.members, self.pcas, strict=True)):
@@ -131,8 +130,7 @@ class ClusterPCA:
     def expand(self, z: np.ndarray) -> np.ndarray:
         """``(F, G, Kmax) -> (F, V, C)``."""
         z = np.asarray(z, dtype=np.float64)
-        check(z.ndim == 3 and z.shape[1:] == (self.n_groups, self.width),
-              f"reduced visibility: expected (F, {self.n_groups}, {self.width}), got {z.shape}")
+        check_shape(z, ("F", self.n_groups, self.width), name="reduced visibility")
         f = z.shape[0]
         out = np.zeros((f, self.n_vertices, self.n_coeffs))
         for g, (m, p) in enumerate(zip(self.members, self.pcas, strict=True)):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 LEVELS = 65535
 
@@ -35,7 +36,7 @@ def quantize16(x: np.ndarray, groups: np.ndarray | None = None) -> tuple[np.ndar
     (1 without groups). Groups without rows get ``scale = 0``, ``offset = 0``.
     """
     a = np.asarray(x)
-    check(a.ndim == 2, f"quantize16: expected an (N, M) array, got shape {a.shape}")
+    check_shape(a, "N M", name="quantize16: input")
     check(bool(np.isfinite(a).all()), "quantize16: input contains NaN or Inf")
     g, n_g = _groups(groups, a.shape[0], "quantize16")
     a = a.astype(np.float64, copy=False)
@@ -61,11 +62,11 @@ def dequantize16(codes: np.ndarray, scale: np.ndarray, offset: np.ndarray,
                  groups: np.ndarray | None = None) -> np.ndarray:
     """Float32 ``(N, M)`` values of :func:`quantize16`'s codes: ``offset[g] + codes * scale[g]``."""
     q = np.asarray(codes)
-    check(q.ndim == 2, f"dequantize16: expected (N, M) codes, got shape {q.shape}")
+    dims = check_shape(q, "N M", name="dequantize16: codes")
     s = np.asarray(scale, dtype=np.float64)
     o = np.asarray(offset, dtype=np.float64)
-    check(s.ndim == 2 and s.shape == o.shape and s.shape[1] == q.shape[1],
-          f"dequantize16: scale {s.shape} / offset {o.shape} must be (G, {q.shape[1]})")
+    check_shape(s, "G M", name="dequantize16: scale", dims=dims)
+    check_shape(o, "G M", name="dequantize16: offset", dims=dims)
     g, n_g = _groups(groups, q.shape[0], "dequantize16")
     check(n_g <= s.shape[0], f"dequantize16: group {n_g - 1} has no scale row (G = {s.shape[0]})")
     return (o[g] + q.astype(np.float64) * s[g]).astype(np.float32)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import torch
 
 from prt_torch.errors import PrtError, check
+from prt_torch.shapes import check_shape
 
 LOG_HALF = math.log(0.5)
 #: lobes at least this sharp get a single cone (eq. 6 aperture ~4.8 degrees)
@@ -124,8 +125,7 @@ def peak_cones(direction: torch.Tensor, solid_angle: torch.Tensor) -> tuple[torc
     """One cone per light peak: ``direction (K, 3)`` unit world, ``solid_angle (K,)`` steradians -> ``dirs
     (K, 3)``, ``half_angle (K,)`` of the cap with that solid angle, ``acos(1 - Omega / 2 pi)`` (at least
     :data:`MIN_HALF_ANGLE`)."""
-    check(direction.ndim == 2 and direction.shape[-1] == 3, f"peak directions must be (K, 3), got "
-                                                              f"{tuple(direction.shape)}")
+    check_shape(direction, "K 3", name="peak directions")
     if not (bool(torch.isfinite(direction).all()) and bool(torch.isfinite(solid_angle).all())):
         raise PrtError("peak directions or solid angles contain NaN or Inf")
     check(bool((solid_angle > 0).all()), "peak solid angles must be > 0")

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import torch
 
 from prt_torch.errors import PrtError, check
+from prt_torch.shapes import check_shape
 
 #: allowed grid resolutions (voxels per side); 64-256 is the useful range
 MIN_RESOLUTION, MAX_RESOLUTION = 16, 512
@@ -39,8 +40,8 @@ def check_resolution(resolution: int) -> int:
 
 
 def check_positions(vertices: torch.Tensor, what: str = "vertex positions") -> None:
-    check(vertices.ndim == 2 and vertices.shape[-1] == 3 and vertices.shape[0] > 0,
-          f"{what} must have shape (V, 3) with V > 0, got {tuple(vertices.shape)}")
+    check_shape(vertices, "V 3", name=what)
+    check(vertices.shape[0] > 0, f"{what} must have shape (V, 3) with V > 0, got {tuple(vertices.shape)}")
     if not bool(torch.isfinite(vertices).all()):
         raise PrtError(f"{what} contain NaN or Inf")
 

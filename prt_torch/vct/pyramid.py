@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 
 @dataclass
@@ -57,8 +57,7 @@ class OpacityPyramid:
 
 def build_pyramid(occupancy: torch.Tensor, min_size: int = 2) -> OpacityPyramid:
     """The pyramid of a cubic ``(R, R, R)`` opacity grid, down to levels of ``min_size`` voxels per side."""
-    check(occupancy.ndim == 3 and occupancy.shape[0] == occupancy.shape[1] == occupancy.shape[2],
-          f"occupancy must be a cubic (R, R, R) grid, got {tuple(occupancy.shape)}")
+    check_shape(occupancy, "R R R", name="occupancy (a cubic grid)")
     levels = [occupancy.to(torch.float32)]
     while levels[-1].shape[0] > min_size:
         x = levels[-1]

@@ -19,6 +19,7 @@ import torch
 
 from prt_torch.errors import PrtError, check
 from prt_torch.sg.shading import SGLight, shade_sg
+from prt_torch.shapes import check_shape
 from prt_torch.vct.cones import SPECULAR_SHARPNESS, pack_lobe_cones, peak_cones
 from prt_torch.vct.trace import TraceSettings
 from prt_torch.vct.visibility import ConeTracer
@@ -82,8 +83,8 @@ class SGVCTRenderer:
                             dtype=torch.float32).to(dev)
         e = torch.as_tensor(np.asarray(eye, dtype=np.float32) if not isinstance(eye, torch.Tensor) else eye,
                             dtype=torch.float32).to(dev)
-        check(p.ndim == 2 and p.shape[1] == 3 and n.shape == p.shape, f"SG renderer: positions and normals must be "
-                                                                      f"(V, 3), got {tuple(p.shape)}, {tuple(n.shape)}")
+        dims = check_shape(p, "V 3", name="SG renderer: positions")
+        check_shape(n, "V 3", name="SG renderer: normals", dims=dims)
         if not (bool(torch.isfinite(p).all()) and bool(torch.isfinite(n).all()) and bool(torch.isfinite(e).all())):
             raise PrtError("SG renderer: positions, normals or eye contain NaN or Inf")
         n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-12)

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 from prt_torch.vct.cones import ConeSet
 from prt_torch.vct.grid import VoxelGrid, check_positions, check_resolution, fit_grid
 from prt_torch.vct.pyramid import OpacityPyramid, build_pyramid
@@ -46,7 +47,8 @@ class ConeTracer:
         check_resolution(self.resolution)
         f = torch.as_tensor(np.asarray(self.faces.cpu() if isinstance(self.faces, torch.Tensor) else self.faces),
                             dtype=torch.long)
-        check(f.ndim == 2 and f.shape[1] == 3 and len(f) > 0, f"faces must be (T, 3) with T > 0, got {tuple(f.shape)}")
+        check_shape(f, "T 3", name="faces")
+        check(len(f) > 0, f"faces must be (T, 3) with T > 0, got {tuple(f.shape)}")
         if self.solid is None:
             self.solid = is_closed_mesh(f.numpy())
         self._faces = {torch.device("cpu"): f}
@@ -72,8 +74,8 @@ class ConeTracer:
             dirs = dirs[None].expand(v, -1, -1)
             half = half[None].expand(v, -1)
         n = dirs.shape[1]
-        check(dirs.shape == (v, n, 3) and half.shape == (v, n), f"cones must be ({v}, N, 3) and ({v}, N), got "
-                                                                  f"{tuple(dirs.shape)} and {tuple(half.shape)}")
+        dims = check_shape(dirs, (v, "N", 3), name="cone directions")
+        check_shape(half, (v, "N"), name="cone half-angles", dims=dims)
         org = positions[:, None, :].expand(v, n, 3).reshape(-1, 3)
         nrm = normals[:, None, :].expand(v, n, 3).reshape(-1, 3)
         vis = trace_cones(frame.pyramid, frame.grid, org, dirs.reshape(-1, 3), half.reshape(-1), nrm, self.settings)

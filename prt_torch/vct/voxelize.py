@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 from prt_torch.vct.grid import VoxelGrid, check_positions
 
 #: lattice subdivisions available to the surface sampler (buckets)
@@ -131,8 +132,8 @@ def voxelize(vertices: torch.Tensor, faces: torch.Tensor, grid: VoxelGrid, solid
     """Opacity ``(R, R, R)`` float32 (``[x, y, z]``) of the mesh ``vertices (V, 3)``, ``faces (T, 3)`` in
     ``grid``: its surface voxels, plus (``solid=True``, closed meshes only) the voxels inside it."""
     check_positions(vertices)
-    check(faces.ndim == 2 and faces.shape[-1] == 3 and faces.shape[0] > 0,
-          f"faces must have shape (T, 3) with T > 0, got {tuple(faces.shape)}")
+    check_shape(faces, "T 3", name="faces")
+    check(faces.shape[0] > 0, f"faces must have shape (T, 3) with T > 0, got {tuple(faces.shape)}")
     check(int(faces.min()) >= 0 and int(faces.max()) < vertices.shape[0],
           f"faces index vertices outside [0, {vertices.shape[0]})")
     r = grid.resolution

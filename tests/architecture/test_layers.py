@@ -20,8 +20,9 @@ PKG = Path(__file__).resolve().parents[2] / "prt_torch"
 #: layer rank of each top-level unit of prt_torch (module or package); config schemas (``*.config``
 #: modules) rank with ``config``: they are plain pydantic models every stage reads
 RANKS: dict[str, int] = {
-    "__init__": 0, "errors": 0, "shapes": 0, "io": 0, "runtime": 0, "rundir": 0, "config": 0, "limits": 0, "kernels": 0, "exact": 0,
-    "conventions": 0,
+    "__init__": 0, "errors": 0, "shapes": 0, "io": 0, "runtime": 0, "rundir": 0, "config": 0, "limits": 0,
+    "kernels": 0, "exact": 0,
+    "conventions": 0, "progress": 0,
     "sh": 1,
     "light": 2, "brdf": 2,
     "shade": 3, "metrics": 3, "shexp": 3, "sg": 3,

@@ -32,7 +32,7 @@ def frame_skins(run: CompareRun, frames: FrameSet) -> np.ndarray:
     """``(F, J, 4, 4)`` skinning matrices of the compared frames: each clip posed at the dataset's frame rate
     (``compare.run.clip_frames`` / the bake), rows picked by ``frame_index``."""
     ch = run.character
-    fps = (run.dataset.attrs.get("config") or {}).get("character", {}).get("fps")
+    fps = run.dataset.recorded_fps()
     out = np.empty((frames.n_frames, ch.num_joints, 4, 4), dtype=np.float64)
     for clip in dict.fromkeys(frames.clips):
         check(clip in ch.clips, f"shexp: clip {clip!r} is not a clip of character {ch.name!r}")
