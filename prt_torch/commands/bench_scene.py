@@ -111,16 +111,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _heldout_clip(run: Any) -> str:
-    """The first held-out clip of the run's dataset (else ``wave``)."""
-    from prt_torch.errors import PrtError
+    """The first held-out clip of the run's dataset (else ``wave``; also without a dataset)."""
+    from prt_torch.errors import MissingArtifact
 
     try:
         cfg = run.dataset().recorded_config()
-        held = (cfg.get("character", {}) or {}).get("heldout_clips") or []
-        if held:
-            from prt_torch.rig.config import as_clip_range
+    except MissingArtifact:
+        return "wave"
+    held = (cfg.get("character", {}) or {}).get("heldout_clips") or []
+    if held:
+        from prt_torch.rig.config import as_clip_range
 
-            return as_clip_range(held[0]).dataset_name
-    except PrtError:
-        pass
+        return as_clip_range(held[0]).dataset_name
     return "wave"
