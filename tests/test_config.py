@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[1]
 def test_shipped_configs_validate(name: str) -> None:
     path = REPO / "configs" / name
     if set(yaml.safe_load(path.read_text())) == {"scene"}:  # a scene file (`prt play RUN --scene FILE`)
-        from prt_torch.scene.config import load_scene
+        from prt_torch.scene.load import load_scene
 
         assert load_scene(str(path)).characters
         return

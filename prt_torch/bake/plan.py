@@ -19,15 +19,13 @@ them as base poses, cpca clusters and resamples them), never a held-out clip or 
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, warn
-from prt_torch.rig.clip import Clip
-from prt_torch.rig.config import ClipRange, as_clip_range
+from prt_torch.errors import PrtError
+from prt_torch.rig.load import add_motions, check_disjoint, load_character, resolve_clips
 
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
@@ -81,106 +79,6 @@ class BakePlan:
         return h.hexdigest()
 
 
-def load_character(cfg: RunConfig) -> Character:
-    """The character of a run: the built-in humanoid or a glTF file (``character.source``); for a cloth run the
-    cape's body (its subject, body + cloth, is :attr:`prt_torch.cloth.subject.ClothSubject.character`). A key set
-    that has no effect on this character (:meth:`~prt_torch.rig.config.CharacterConfig.ineffective_keys`) is one
-    warning line."""
-    ch = cfg.character
-    if ch.source == "builtin":
-        from prt_torch.rig.builtin import make_character
-
-        character = make_character(ch.density, fps=ch.fps)
-    else:
-        path = cfg.resolve(ch.source)
-        if path.suffix.lower() not in (".glb", ".gltf"):
-            raise PrtError(f"unknown character source {ch.source!r}: expected 'builtin' or a .glb/.gltf file")
-        if not path.is_file():
-            raise PrtError(f"character file not found: {path}")
-        from prt_torch.rig.gltf import load_gltf
-
-        character = load_gltf(path, fps=ch.fps, height=ch.height)
-    for message in ch.ineffective_keys(ch.source == "builtin", character.joint_limits is not None):
-        warn(message)
-    return add_motions(cfg, character)
-
-
-def add_motions(cfg: RunConfig, character: Character) -> Character:
-    """Retarget ``character.motions`` (files resolved against the config file) onto ``character`` as clips named
-    by each entry (``fps`` default ``character.fps``, then the ``frames`` slice). A missing or malformed file, a
-    non-humanoid skeleton, an empty slice or a name clash is a one-line :class:`PrtError` naming the entry."""
-    from prt_torch.rig.retarget import retarget_file
-
-    for i, m in enumerate(cfg.character.motions):
-        key = f"character.motions[{i}] ({m.name!r})"
-        if m.name in character.clips:
-            raise PrtError(f"{key}: the character already has a clip named {m.name!r}")
-        path = cfg.resolve(m.file)
-        if not path.is_file():
-            raise PrtError(f"{key}: motion file not found: {path}")
-        try:
-            clip, _ = retarget_file(path, character, fps=m.fps or cfg.character.fps, joint_map=m.joint_map,
-                                    name=m.name, skip_first=m.skip_first, clip=m.clip)
-        except PrtError as e:
-            raise PrtError(f"{key}: {e}") from None
-        local = clip.local[m.frame_slice()]
-        if local.shape[0] == 0:
-            raise PrtError(f"{key}: frames {m.frames!r} select no frame of {clip.num_frames}")
-        character.clips[m.name] = Clip(m.name, clip.fps, local)
-    return character
-
-
-@dataclass
-class PlanClip:
-    """One ``train_clips``/``heldout_clips`` entry resolved against the character.
-
-    Attributes:
-        name: the dataset clip name.
-        source: the character clip it is cut from.
-        frame_index: ``(F',)`` int64 indices into the source clip resampled at ``character.fps``.
-        clip: those frames as a :class:`Clip` (``local (F', J, 4, 4)``), named ``name``.
-    """
-
-    name: str
-    source: str
-    frame_index: np.ndarray
-    clip: Clip
-
-
-def resolve_clips(character: Character, entries: Sequence[str | ClipRange], fps: float, key: str) -> list[PlanClip]:
-    """Resolve config entries (clip names or :class:`ClipRange`) to frames of the character's clips at ``fps``.
-
-    Unknown clips and ranges that select no frame are one-line :class:`PrtError` naming ``key``.
-    """
-    out = []
-    for i, entry in enumerate(entries):
-        r = as_clip_range(entry)
-        if r.clip not in character.clips:
-            raise PrtError(f"unknown clip {r.clip!r} in {key}[{i}] for character {character.name!r}; available: "
-                           f"{sorted(character.clips)}")
-        full = character.clips[r.clip]
-        if fps != full.fps:  # as Character.pose(name, fps=...)
-            full = full.resample(fps)
-        idx = r.frame_indices(full.num_frames, fps)
-        if idx.size == 0:
-            raise PrtError(f"{key}[{i}]: {r.dataset_name!r} selects no frame of clip {r.clip!r} "
-                           f"({full.num_frames} frames at {fps:g} fps)")
-        out.append(PlanClip(r.dataset_name, r.clip, idx, Clip(r.dataset_name, full.fps, full.local[idx])))
-    return out
-
-
-def _check_disjoint(train: list[PlanClip], heldout: list[PlanClip]) -> None:
-    """No dataset clip name twice, and no frame of a source clip in two entries (train vs held-out above all)."""
-    entries = [("train_clips", c) for c in train] + [("heldout_clips", c) for c in heldout]
-    for i, (key, c) in enumerate(entries):
-        for other_key, o in entries[:i]:
-            if o.name == c.name:
-                raise PrtError(f"clip listed twice in train_clips/heldout_clips: {c.name!r}")
-            if o.source == c.source and np.intersect1d(o.frame_index, c.frame_index).size:
-                raise PrtError(f"{key} entry {c.name!r} and {other_key} entry {o.name!r} share frames of clip "
-                               f"{c.source!r}")
-
-
 def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
     """Pose every frame the config asks for (validated: unknown clips, empty or overlapping ranges and empty
     sets are errors). The random poses' source clips are the training entries' frames, nothing else."""
@@ -195,7 +93,7 @@ def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
         character = add_motions(cfg, character)  # load_character) gets the config's motions as clips too
     train = resolve_clips(character, ch.train_clips, ch.fps, "train_clips")
     heldout = resolve_clips(character, ch.heldout_clips, ch.fps, "heldout_clips")
-    _check_disjoint(train, heldout)
+    check_disjoint(train, heldout)
     if ch.random_poses and (RANDOM_CLIP in character.clips or RANDOM_CLIP in [c.name for c in train + heldout]):
         raise PrtError(f"character has a clip named {RANDOM_CLIP!r}, which clashes with the random poses")
     if not train and not ch.random_poses:

@@ -137,7 +137,7 @@ def library_versions() -> dict[str, str]:
     return out
 
 
-def _codecs() -> dict[str, Any]:
+def store_codecs() -> dict[str, Any]:
     """``create_array`` keyword arguments of format 2: zstd (zarr's default, level 0), then a crc32c checksum."""
     from zarr.codecs import Crc32cCodec, ZstdCodec
 
@@ -188,7 +188,7 @@ def create_store(path: Path, arrays: dict[str, np.ndarray], per_frame: dict[str,
     """
     if path.exists():
         raise PrtError(f"dataset already exists: {path}")
-    codecs = _codecs() if int(attrs.get("format_version", FORMAT_VERSION)) >= 2 else {}
+    codecs = store_codecs() if int(attrs.get("format_version", FORMAT_VERSION)) >= 2 else {}
     with new_store(path, "this bake", "run `prt bake` again to resume it") as g:
         for name, (shape, dtype) in per_frame.items():
             g.create_array(name, shape=(n_frames, *shape), chunks=(frames_per_task, *shape), dtype=dtype,

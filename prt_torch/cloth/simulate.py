@@ -174,9 +174,9 @@ def simulate_sequence(subject: ClothSubject, name: str, engine: Engine | None = 
 def _create_store(path: Path, subject: ClothSubject, attrs: dict[str, Any]) -> None:
     """Create the complete store atomically (:func:`prt_torch.bake.store.new_store`: a temporary sibling, then a
     rename that replaces nothing)."""
-    from prt_torch.bake.store import _codecs, new_store
+    from prt_torch.bake.store import new_store, store_codecs
 
-    codecs = _codecs()
+    codecs = store_codecs()
     with new_store(path, "this simulation", "run it again to resume") as g:
         names = subject.all_sequences()
         for name in names:

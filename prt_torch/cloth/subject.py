@@ -117,7 +117,7 @@ class ClothSubject:
             splits = {"train": [w.name for w in c.train_winds], "heldout": [w.name for w in c.heldout_winds]}
             return cls(c, rest, faces, pinned, fps, splits=splits,
                        winds={w.name: w for w in c.train_winds + c.heldout_winds})
-        from prt_torch.bake.plan import _check_disjoint, load_character, resolve_clips
+        from prt_torch.rig.load import check_disjoint, load_character, resolve_clips
 
         fps = cfg.character.fps
         if c.fps is not None and c.fps != fps:
@@ -125,7 +125,7 @@ class ClothSubject:
         body = load_character(cfg)
         train = resolve_clips(body, cfg.character.train_clips, fps, "train_clips")
         held = resolve_clips(body, cfg.character.heldout_clips, fps, "heldout_clips")
-        _check_disjoint(train, held)
+        check_disjoint(train, held)
         if not train:
             raise PrtError("the cape needs character.train_clips (the body motions that drive it)")
         capsules = fit_capsules(body)

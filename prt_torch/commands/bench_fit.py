@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.fit.config import TrainConfig
     from prt_torch.fit.device import DEVICES, fit_device, resolve_device
     from prt_torch.fit.inputs import load_skinning
-    from prt_torch.fit.train import fit_mlp_kind, fit_ridge_kind, reduce_training
+    from prt_torch.fit.kinds import fit_mlp_kind, fit_ridge_kind, reduce_training
 
     if args.max_iter is not None:
         limits.check_int(args.max_iter, "--max-iter", 1, limits.MAX_ITERATIONS)

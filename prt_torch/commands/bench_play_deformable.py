@@ -41,12 +41,6 @@ import numpy as np
 HELP = "Frames/s of a deformable run's run-time path (positions -> frames + features + visibility -> shading)."
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from prt_torch.commands.bench_play import add_arguments as play_arguments
-
-    play_arguments(parser)
-
-
 def _positions_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, device: str) -> dict[str, Any]:
     """The run's positions-in graph exported at each precision into ``tmp`` (torch): ``{precision: OrtGraph}``."""
     import torch
@@ -55,12 +49,12 @@ def _positions_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, 
     from prt_torch.export.deformable import graph_input_names, positions_graph_module
     from prt_torch.export.graphs import VisibilityGraph
     from prt_torch.export.onnx_file import export_onnx
-    from prt_torch.export.run import _per_cluster, lowering
+    from prt_torch.export.run import lowering, per_cluster
     from prt_torch.models.visibility import load_model
     from prt_torch.runtime.session import OrtGraph
 
     model = load_model(run, run.export_meta().get("model_kind"))
-    if not _per_cluster(model):
+    if not per_cluster(model):
         return {}
     d = DeformData.load(run.deform_path)
     names = graph_input_names(d.n_body_features)
@@ -79,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from prt_torch import limits
-    from prt_torch.commands.bench_play import bound, copy_bandwidth, gemm_rate, step_costs
+    from prt_torch.commands.roofline import bound, copy_bandwidth, gemm_rate, step_costs
     from prt_torch.errors import check
     from prt_torch.export.graphs import PRECISIONS
     from prt_torch.export.onnx_file import initializer_bytes, weight_macs

@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.player.scene import SCENE_STEPS, ScenePlayer
     from prt_torch.player.timing import FrameTimer
     from prt_torch.rundir import RunDir
-    from prt_torch.scene.config import load_scene, scene_from_dict
+    from prt_torch.scene.config import scene_from_dict
+    from prt_torch.scene.load import load_scene
 
     limits.check_int(args.frames, "--frames", 1, 100_000)
     limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)

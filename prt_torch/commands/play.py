@@ -211,7 +211,7 @@ def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
     from prt_torch.errors import PrtError
     from prt_torch.player.scene import ScenePlayer
     from prt_torch.rundir import RunDir
-    from prt_torch.scene.config import load_scene
+    from prt_torch.scene.load import load_scene
 
     if args.motion is not None:
         raise PrtError("--motion is not supported with --ground/--scene: use --clip")

@@ -19,7 +19,7 @@ from prt_torch.bake.deformable import is_deformable
 from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
 from prt_torch.errors import PrtError, check
-from prt_torch.eval.evaluate import _resolve_dataset
+from prt_torch.eval.evaluate import resolve_dataset
 from prt_torch.eval.shipping import (
     DIFFUSE,
     GLOSSY,
@@ -48,7 +48,7 @@ def load_compare_run(run_dir: str | Path | RunDir, dataset: str | Path | None = 
     """The :class:`CompareRun` of a trained run (its dataset and character; the export when present)."""
     run = RunDir.of(run_dir).require()
     meta = run.model_meta()
-    ds = _resolve_dataset(run, meta, dataset)
+    ds = resolve_dataset(run, meta, dataset)
     character = ds.character()
     check(character.num_vertices == ds.n_vertices,
           f"{ds.path}: {ds.n_vertices} vertices, its character {character.num_vertices}")
@@ -182,7 +182,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
             a second character, ``compare.json`` gains ``ground`` and ``scene`` (:mod:`prt_torch.compare.ground`).
     """
     from prt_torch.brdf.rpo import builtin_brdf
-    from prt_torch.eval.evaluate import _Bar
+    from prt_torch.eval.evaluate import ProgressBar
     from prt_torch.player.lighting import load_lighting
 
     check(max_frames is None or max_frames >= 1, f"--frames must be >= 1, got {max_frames}")
@@ -219,7 +219,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         insts[n] = m
     source = f"clip {clip!r} posed and ray-traced here" if clip else "done held-out frames of the dataset"
     note(f"{fs.n_frames} frames ({source}), {ctx.n_vertices} vertices; methods: {', '.join(names)}")
-    bar = _Bar(progress, fs.n_frames, "methods, round-robin")
+    bar = ProgressBar(progress, fs.n_frames, "methods, round-robin")
     try:
         vis, rad_direct, secs = _time_methods(insts, fs, req, bar)
     finally:
@@ -255,7 +255,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
     faces = np.asarray(ctx.character.faces)
     offset = float(ctx.bake["ray_offset_world"])
     light_ref = reference_light(env) if light == "sky" else spec_reference(spec)
-    bar = _Bar(progress, len(all_idx), "images and reference")
+    bar = ProgressBar(progress, len(all_idx), "images and reference")
     renderer = ImageRenderer(ctx.character.rest_vertices, faces, camera)
     try:
         for j, f in enumerate(all_idx):

@@ -21,22 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.deform.dihedral_soa import DihedralSoA, check_edges
+from prt_torch.errors import PrtError
 
 
 def _dtype(positions: np.ndarray) -> np.dtype:
     return np.dtype(np.float32) if positions.dtype in (np.float16, np.float32) else np.dtype(np.float64)
-
-
-def check_edges(edges: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Validate ``(E, 4)`` integer edge rows indexing ``n_vertices`` vertices; returns them as intp."""
-    e = np.asarray(edges)
-    check(e.ndim == 2 and e.shape[1] == 4, f"dihedral edges must have shape (E, 4), got {e.shape}")
-    check(np.issubdtype(e.dtype, np.integer), f"dihedral edges must be integers, got {e.dtype}")
-    if e.size:
-        check(int(e.min()) >= 0 and int(e.max()) < n_vertices,
-              f"dihedral edge index out of range [0, {n_vertices}): min {int(e.min())}, max {int(e.max())}")
-    return e.astype(np.intp)
 
 
 def dihedral_angles(positions: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -56,8 +46,6 @@ def dihedral_angles(positions: np.ndarray, edges: np.ndarray) -> np.ndarray:
     e = check_edges(edges, x.shape[-2])
     if e.shape[0] == 0:
         return np.zeros((*x.shape[:-2], 0), x.dtype)
-    from prt_torch.deform.dihedral_soa import DihedralSoA  # here: dihedral_soa imports check_edges from this module
-
     v = x.shape[-2]
     soa = np.moveaxis(x.reshape(-1, v, 3), -1, 1)  # (B, 3, V)
     return DihedralSoA(e, v)(soa).reshape(*x.shape[:-2], e.shape[0])

@@ -20,8 +20,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from prt_torch.deform.dihedral import check_edges
 from prt_torch.errors import PrtError, check
+
+
+def check_edges(edges: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Validate ``(E, 4)`` integer edge rows indexing ``n_vertices`` vertices; returns them as intp."""
+    e = np.asarray(edges)
+    check(e.ndim == 2 and e.shape[1] == 4, f"dihedral edges must have shape (E, 4), got {e.shape}")
+    check(np.issubdtype(e.dtype, np.integer), f"dihedral edges must be integers, got {e.dtype}")
+    if e.size:
+        check(int(e.min()) >= 0 and int(e.max()) < n_vertices,
+              f"dihedral edge index out of range [0, {n_vertices}): min {int(e.min())}, max {int(e.max())}")
+    return e.astype(np.intp)
 
 
 class DihedralSoA:

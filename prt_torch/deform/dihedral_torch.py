@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from prt_torch.deform.dihedral import check_edges
+from prt_torch.deform.dihedral_soa import check_edges
 from prt_torch.errors import check
 
 

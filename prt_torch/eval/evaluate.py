@@ -111,7 +111,7 @@ def visibility_metrics(pred: np.ndarray, truth: np.ndarray, clip_id: np.ndarray)
             "jitter": _jitter_per_clip(pred, truth, clip_id)}
 
 
-def _resolve_dataset(run: RunDir, meta: dict[str, Any], dataset: str | Path | None) -> BakedDataset:
+def resolve_dataset(run: RunDir, meta: dict[str, Any], dataset: str | Path | None) -> BakedDataset:
     """The dataset a trained run is scored on: ``dataset`` when given, else the run's own, else the one recorded
     in ``model.json`` at training time (one warning line names it: it is not the run's own). A dataset of another
     character than the model's (content hash, vertex count) is a :class:`PrtError`."""
@@ -167,7 +167,7 @@ def evaluate_run(run_dir: str | Path | RunDir, dataset: str | Path | None = None
     """
     run = RunDir.of(run_dir).require()
     meta = run.model_meta()
-    ds = _resolve_dataset(run, meta, dataset)
+    ds = resolve_dataset(run, meta, dataset)
     kinds = [k for k in (kinds or meta["kinds"]) if k in KINDS]
     check(len(kinds) > 0, f"no trained model kinds in {run.path}")
     models = {k: run.model(k) for k in kinds}
@@ -248,7 +248,7 @@ def _shade_split(shader: ShippingShader, sp: SplitData, preds: dict[str, np.ndar
     keep = set(int(i) for i in img_idx)
     kept: dict[int, dict[tuple[str, str, str], dict[str, np.ndarray]]] = {}
     chunks = shader.chunks(sp.n_frames, sp.visibility.shape[1])
-    bar = _Bar(progress, len(chunks) + len(keep), f"shading {sp.name}")
+    bar = ProgressBar(progress, len(chunks) + len(keep), f"shading {sp.name}")
     try:
         for sl, res in shader.shade(vis, frames, positions):
             for c, d in res.items():
@@ -325,7 +325,7 @@ def targets(results: dict[str, Any]) -> dict[str, Any]:
             "psnr_glossy": pg, "psnr_glossy_ok": None if pg is None else pg >= 35}
 
 
-class _Bar:
+class ProgressBar:
     """A rich progress bar (or nothing)."""
 
     def __init__(self, enabled: bool, total: int, label: str) -> None:

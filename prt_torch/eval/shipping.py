@@ -378,10 +378,10 @@ class ImageRenderer:
     BACKGROUND = (0.08, 0.08, 0.1)  # the MeshRenderer default (the player's)
 
     def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> None:
-        from prt_torch.player.render import MeshRenderer, _quiet_vtk_display_probe, has_display
+        from prt_torch.player.render import MeshRenderer, has_display, quiet_vtk_display_probe
 
         if not has_display():
-            _quiet_vtk_display_probe()
+            quiet_vtk_display_probe()
         h, w = camera.window_hw
         self.camera = camera
         self.renderer = MeshRenderer(rest_vertices, faces, window_size=(w, h), off_screen=True)
@@ -483,11 +483,3 @@ def evenly_spaced(n_total: int, n_pick: int, must: Sequence[int] = ()) -> np.nda
         extra = [int(i) for i in idx if int(i) not in keep][: max(0, n_pick - len(keep))]
         idx = np.array(sorted(keep | set(extra)), dtype=np.int64)
     return idx
-
-
-def check_radiance(name: str, a: np.ndarray) -> np.ndarray:
-    """``a`` as float32 with a one-line error when it is not finite."""
-    a = np.asarray(a, dtype=np.float32)
-    if not np.isfinite(a).all():
-        raise PrtError(f"{name}: radiance contains NaN or Inf")
-    return a

@@ -226,13 +226,13 @@ def ship_deformable(run: RunDir, spec: DeformSpec, vis_graph: Any, held: dict[st
             "prt.positions": "positions input (B, V, 3) world, subject vertices (body then cloth for the cape)"}
     export_onnx(module, args, path, names, ("visibility",), {**{k: batch for k in names}, "visibility": batch},
                 metadata=meta, opset=opset, exporter=exporter, **(lowered or {}))
-    from prt_torch.export.run import _emulate_int8
+    from prt_torch.export.graphs import set_int8_emulation
 
-    _emulate_int8(module, True)
+    set_int8_emulation(module, True)
     try:
         p = check_parity(module, path, inputs, rtol=rtol)
     finally:
-        _emulate_int8(module, False)
+        set_int8_emulation(module, False)
     fused: dict[str, Any] = {}
     if fused_graph is not None and fused_inputs is not None:
         from prt_torch.export.graphs import FUSED_INPUTS
@@ -248,11 +248,11 @@ def ship_deformable(run: RunDir, spec: DeformSpec, vis_graph: Any, held: dict[st
                                                                  if fused_graph.vertex_order is not None
                                                                  else "original"},
                     opset=opset, exporter=exporter, **(lowered or {}))
-        _emulate_int8(fmod, True)
+        set_int8_emulation(fmod, True)
         try:
             fp = check_parity(fmod, fpath, finputs, rtol=rtol)
         finally:
-            _emulate_int8(fmod, False)
+            set_int8_emulation(fmod, False)
         fused = {"fused_file": run.relative(fpath), "fused_inputs": list(fnames),
                  "fused_parity": {**fp.as_dict(), "file_bytes": fpath.stat().st_size}}
     return {**fused,"version": DEFORMABLE_VERSION, "deform_file": run.relative(run.deform_path),

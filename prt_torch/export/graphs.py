@@ -455,6 +455,13 @@ class VisibilityGraph(nn.Module):
         return v.transpose(1, 2) if self.vertex_last else v
 
 
+def set_int8_emulation(module: nn.Module, on: bool) -> None:
+    """Switch the int8 input rounding of every :class:`VisibilityGraph` in ``module`` (the parity reference)."""
+    for m in module.modules():
+        if isinstance(m, VisibilityGraph):
+            m.emulate_int8(on)
+
+
 class FusedGraph(nn.Module):
     """Pose features straight to radiance: :class:`VisibilityGraph` then :class:`ShadingGraph`."""
 

@@ -184,6 +184,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         FusedGraph,
         ShadingGraph,
         VisibilityGraph,
+        set_int8_emulation,
     )
     from prt_torch.export.onnx_file import export_onnx, initializer_bytes
     from prt_torch.export.parity import check_parity
@@ -233,7 +234,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
           f"model takes {model.n_features} pose features but the character gives {character.feature_width}")
     order, V, A, C = model.order, model.n_vertices, model.n_features, model.n_coeffs
     held = heldout_inputs(run)
-    vis_graph = VisibilityGraph(model, precision=precision if _per_cluster(model) else "fp32").eval()
+    vis_graph = VisibilityGraph(model, precision=precision if per_cluster(model) else "fp32").eval()
     precision = vis_graph.precision
     fused_graph = FusedGraph(model, order, n_terms, cluster_sorted=True, precision=precision).eval()
     vorder = fused_graph.vertex_order  # None: the model has no per-vertex clusters, the fused graph stays original
@@ -295,12 +296,12 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
             g_meta["prt.precision"] = "fp32"
         export_onnx(module, args, path, in_names, out_names, dyn, metadata=g_meta, opset=opset, exporter=exporter,
                     **lowering(precision if graph_name != "shading" else "fp32"))
-        _emulate_int8(module, True)
+        set_int8_emulation(module, True)
         try:
             p = check_parity(module, path, {k: inputs[k] for k in in_names},
                              rtol=PARITY_RTOL_BY_PRECISION[precision])
         finally:
-            _emulate_int8(module, False)
+            set_int8_emulation(module, False)
         parity[graph_name] = {**p.as_dict(), "initializer_bytes": initializer_bytes(path),
                               "file_bytes": path.stat().st_size}
         if console is not None:
@@ -368,20 +369,11 @@ def _transfer_key(run: RunDir) -> dict[str, Any]:
     return {"transfer": [file_sha256(run.transfer_json), TRANSFER_GRAPH_VERSION]}
 
 
-def _per_cluster(model: Any) -> bool:
+def per_cluster(model: Any) -> bool:
     """Whether ``model`` has the per-cluster output bases that the precision and the cluster order apply to."""
     from prt_torch.models.projection import OutputUnprojection
 
     return isinstance(getattr(model, "out", None), OutputUnprojection)
-
-
-def _emulate_int8(module: Any, on: bool) -> None:
-    """Switch the int8 input rounding of every :class:`VisibilityGraph` in ``module`` (the parity reference)."""
-    from prt_torch.export.graphs import VisibilityGraph
-
-    for m in module.modules():
-        if isinstance(m, VisibilityGraph):
-            m.emulate_int8(on)
 
 
 def _example_lobes(order: int) -> tuple[np.ndarray, np.ndarray]:

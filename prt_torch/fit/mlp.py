@@ -441,9 +441,3 @@ def _fit_mlp(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample_we
         last = loss
     loss = closure()
     return obj.unpack(theta), loss, done
-
-
-def mlp_predict(x: torch.Tensor, p: MLPParams) -> torch.Tensor:
-    """``x (F, d)`` -> ``(S, G, F, K)`` without gradients."""
-    with torch.no_grad():
-        return mlp_forward(x.to(p.D.dtype), p)

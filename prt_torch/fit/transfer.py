@@ -34,7 +34,7 @@ from prt_torch.bake.store import BakedDataset, SplitData
 from prt_torch.errors import MissingArtifact, check
 from prt_torch.fit.config import TrainConfig, TransferConfig
 from prt_torch.fit.folds import blocked_folds
-from prt_torch.fit.train import FitResult, Reduced, _log, cv_train_only, fit_kinds, fit_ridge_kind
+from prt_torch.fit.kinds import FitResult, Reduced, cv_train_only, fit_kinds, fit_ridge_kind, log_progress
 from prt_torch.io import atomic_write_json
 from prt_torch.metrics import vis_rel_err
 from prt_torch.models import save_model
@@ -81,7 +81,7 @@ def output_reduction(y: np.ndarray, cluster: np.ndarray, tcfg: TransferConfig) -
 def reduce_transfer(train: SplitData, target: np.ndarray, cluster: np.ndarray, tcfg: TransferConfig,
                     cfg: TrainConfig, train_only: np.ndarray | None = None) -> Reduced:
     """Input PCA of ``train.pose``, output PCA of ``target (F, V, C6)`` (the training split's transfer), blocked
-    folds (``cfg.folds``): the :class:`prt_torch.fit.train.Reduced` the visibility fitters take."""
+    folds (``cfg.folds``): the :class:`prt_torch.fit.kinds.Reduced` the visibility fitters take."""
     y = check_target(target, train.n_frames)
     check(train.n_frames >= 2 * cfg.folds, f"only {train.n_frames} training frames for {cfg.folds} folds")
     inp = PCA.fit(train.pose, variance=tcfg.input_variance, n_components=tcfg.input_components,
@@ -156,7 +156,7 @@ def train_transfer(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: An
     for array in arrays:
         y = train.extra[array]
         red = reduce_transfer(train, y, ds.cluster, tcfg, cfg, train_only)
-        _log(progress, f"{array}: input PCA {ds.n_features} -> {red.inp.n_components} dims "
+        log_progress(progress, f"{array}: input PCA {ds.n_features} -> {red.inp.n_components} dims "
                        f"({red.inp.retained:.3f}); output PCA {tcfg.output_pca}: {red.out.n_groups} group(s), "
                        f"width {red.out.width}")
         fits = fit_transfer(red, tcfg, cfg, progress)

@@ -108,10 +108,6 @@ def sequence_view(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
     return center, radius, facing_azimuth(positions, faces)
 
 
-def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
-
-
 class Player:
     """Plays clips of an exported run with ONNX Runtime (see the module docstring).
 

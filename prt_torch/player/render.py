@@ -45,7 +45,7 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def _quiet_vtk_display_probe() -> None:
+def quiet_vtk_display_probe() -> None:
     """Headless: VTK logs "bad X server connection" before falling back to EGL; keep only its errors."""
     try:
         from vtkmodules.vtkCommonCore import vtkLogger
@@ -131,7 +131,7 @@ class MeshRenderer:
         import pyvista as pv
 
         if off_screen and not has_display():
-            _quiet_vtk_display_probe()
+            quiet_vtk_display_probe()
         self.plotter = pv.Plotter(off_screen=off_screen, window_size=list(window_size))
         self.plotter.set_background(background)
         self.off_screen = off_screen

@@ -146,20 +146,6 @@ def scene_from_dict(data: Any, source: str = "scene") -> SceneConfig:
         raise PrtError(f"{source}: scene.{loc}: {msg}") from None
 
 
-def load_scene(path: str) -> SceneConfig:
-    """A scene YAML file (a whole run config with a ``scene:`` section, or just the section)."""
-    from pathlib import Path
-
-    from prt_torch.config import parse_yaml
-
-    p = Path(path)
-    if not p.is_file():
-        raise PrtError(f"scene file not found: {p}")
-    if p.stat().st_size > L.MAX_CONFIG_BYTES:
-        raise PrtError(f"{p}: scene file over the {L.MAX_CONFIG_BYTES} byte bound")
-    return scene_from_dict(parse_yaml(p.read_text(encoding="utf-8"), str(p)), str(p))
-
-
 def run_scene(run: Any) -> SceneConfig | None:
     """The scene a run directory records (``RunDir.scene_json``, written by ``prt demo``), or ``None``."""
     path = run.scene_json

@@ -122,15 +122,6 @@ def pose_actor(actor: Actor, placed_locals: np.ndarray) -> PosedMesh:
     return PosedMesh(np.asarray(pos, dtype=np.float32), frames, skin)
 
 
-def posed_spheres(actor: Actor, skin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``centers (F, S, 3)`` float32 and ``radii (S,)`` float32 of the actor's spheres at skinning matrices
-    ``skin (F, J, 4, 4)`` (:func:`prt_torch.blockers.pose_spheres`)."""
-    from prt_torch.blockers import pose_spheres
-
-    check(actor.spheres is not None, f"{actor.name}: no blocker spheres (export the run with its blockers)")
-    return pose_spheres(actor.spheres, skin), np.asarray(actor.spheres.radius, dtype=np.float32)
-
-
 def check_separated(centers: list[np.ndarray], radii: list[np.ndarray], names: list[str] | None = None,
                     frame: int | str = 0) -> None:
     """One-line :class:`PrtError` if spheres of two different characters interpenetrate (module docstring).

@@ -60,7 +60,7 @@ def band_of(order: int) -> np.ndarray:
     return np.repeat(np.arange(order), 2 * np.arange(order) + 1)
 
 
-def _is_torch(a: Any) -> bool:
+def is_torch(a: Any) -> bool:
     return type(a).__module__.startswith("torch")
 
 
@@ -69,9 +69,9 @@ def check_float_array(a: Any, name: str, finite: bool = True) -> np.ndarray:
 
     Returns a numpy view (a CPU copy for torch input) for further checks; raises :class:`PrtError`.
     """
-    if not (isinstance(a, np.ndarray) or _is_torch(a)):
+    if not (isinstance(a, np.ndarray) or is_torch(a)):
         raise PrtError(f"{name} must be a numpy array or torch tensor, got {type(a).__name__}")
-    arr = a.detach().cpu().numpy() if _is_torch(a) else a
+    arr = a.detach().cpu().numpy() if is_torch(a) else a
     if not np.issubdtype(arr.dtype, np.floating):
         raise PrtError(f"{name} must be floating point, got {a.dtype}")
     if finite and not np.isfinite(arr).all():
@@ -110,7 +110,7 @@ def check_directions(dirs: Any, name: str = "directions", atol: float | None = N
         raise PrtError(f"{name} must be unit vectors (max | |d| - 1 | = {err:.3g} > {tol:g})")
 
 
-def _norm_consts(order: int) -> list[list[float]]:
+def norm_consts(order: int) -> list[list[float]]:
     """``K_lm`` (times sqrt(2) for m > 0), computed in float64 with lgamma for stability."""
     out = []
     for l in range(order):
@@ -141,7 +141,7 @@ def sh_basis(dirs: Array, order: int, check: bool = True) -> Array:
         check_directions(dirs)
     x, y, z = dirs[..., 0], dirs[..., 1], dirs[..., 2]
     cols: list[Any] = [None] * (order * order)
-    K = _norm_consts(order)
+    K = norm_consts(order)
     # c_m + i s_m = (x + i y)^m
     c = [x * 0 + 1]
     s = [x * 0]
@@ -168,7 +168,7 @@ def sh_basis(dirs: Array, order: int, check: bool = True) -> Array:
             else:
                 cols[l * (l + 1) + m] = k * q * c[m]
                 cols[l * (l + 1) - m] = k * q * s[m]
-    if _is_torch(dirs):
+    if is_torch(dirs):
         import torch
 
         return torch.stack(cols, dim=-1)

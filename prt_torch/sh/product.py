@@ -43,7 +43,7 @@ import numpy as np
 
 from prt_torch.conventions import BELOW_HORIZON
 from prt_torch.errors import PrtError
-from prt_torch.sh.basis import _is_torch, band_of, check_float_array, check_order, order_from_coeffs, sh_basis
+from prt_torch.sh.basis import band_of, check_float_array, check_order, is_torch, order_from_coeffs, sh_basis
 from prt_torch.sh.quadrature import gauss_product_rule
 from prt_torch.shapes import check_shape
 
@@ -84,7 +84,7 @@ class GauntTensor:
 
     def dense(self) -> np.ndarray:
         """Dense ``(C, C, C)`` float64 copy."""
-        return _dense_gaunt(self.order).copy()
+        return dense_gaunt(self.order).copy()
 
     def torch(self, dtype: Any = None, device: Any = None, sparse: bool = False) -> torch.Tensor:
         """As a torch tensor ``(C, C, C)``: dense by default, a coalesced sparse COO tensor if ``sparse``.
@@ -107,7 +107,7 @@ def _check_product_order(order: int) -> None:
 
 
 @functools.cache
-def _dense_gaunt(order: int) -> np.ndarray:
+def dense_gaunt(order: int) -> np.ndarray:
     _check_product_order(order)
     dirs, w = gauss_product_rule(3 * (order - 1))
     y = sh_basis(dirs, order, check=False)  # (N, C)
@@ -135,7 +135,7 @@ def gaunt_tensor(order: int) -> GauntTensor:
         :class:`GauntTensor` (sparse COO, float64, exact to ~1e-15), cached per order. Symmetric in
         ``(i, j, k)``; ``Gamma_000 = 1/(2 sqrt(pi))``.
     """
-    g = _dense_gaunt(order)
+    g = dense_gaunt(order)
     idx = np.argwhere(g != 0).astype(np.int64)
     vals = g[idx[:, 0], idx[:, 1], idx[:, 2]].astype(np.float64)
     idx.setflags(write=False)
@@ -160,10 +160,10 @@ def _check_coeffs(a: Any, name: str) -> int:
 
 def _gaunt_like(order: int, like: Any) -> Any:
     """Dense Gamma as ``(C, C*C)`` with rows ``k`` and columns ``(i, j)``, in ``like``'s backend/dtype."""
-    g = _dense_gaunt(order)
+    g = dense_gaunt(order)
     c = order * order
     mat = np.ascontiguousarray(g.transpose(2, 0, 1).reshape(c, c * c))
-    if _is_torch(like):
+    if is_torch(like):
         import torch
 
         return torch.from_numpy(mat).to(dtype=like.dtype, device=like.device)
@@ -205,7 +205,7 @@ def sh_product(a: Array, b: Array, check: bool = True) -> Array:
         nb = _check_coeffs(b, "SH coefficients b")
         if na != nb:
             raise PrtError(f"sh_product needs equal orders, got {na} and {nb}")
-        if _is_torch(a) != _is_torch(b):
+        if is_torch(a) != is_torch(b):
             raise PrtError("sh_product needs a and b both numpy or both torch")
     m = product_matrix(a, check=False)
     return (m @ b[..., :, None])[..., 0]

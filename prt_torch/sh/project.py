@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 
 from prt_torch.errors import PrtError
-from prt_torch.sh.basis import _is_torch, check_directions, check_float_array, check_order, order_from_coeffs, sh_basis
+from prt_torch.sh.basis import check_directions, check_float_array, check_order, is_torch, order_from_coeffs, sh_basis
 from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
@@ -46,11 +46,11 @@ def project(values: Array, dirs: Array, weights: Array, order: int, check: bool 
         dims = check_shape(dirs, "N 3", name="projection directions")
         check_shape(values, "N ...", name="values", dims=dims)
         check_shape(weights, "N", name="weights", dims=dims)
-        if len({_is_torch(values), _is_torch(dirs), _is_torch(weights)}) != 1:
+        if len({is_torch(values), is_torch(dirs), is_torch(weights)}) != 1:
             raise PrtError("values, dirs and weights must be all numpy or all torch")
     y = sh_basis(dirs, order, check=False)  # (N, C)
     yw = (y * weights[:, None]).T  # (C, N)
-    if _is_torch(values):
+    if is_torch(values):
         yw = yw.to(values.dtype)
     else:
         yw = yw.astype(np.result_type(values.dtype, yw.dtype), copy=False)
@@ -73,12 +73,12 @@ def reconstruct(coeffs: Array, dirs: Array, check: bool = True) -> Array:
         check_shape(coeffs, "... C", name="SH coefficients")
         check_directions(dirs, "reconstruction directions")
         check_shape(dirs, "N 3", name="reconstruction directions")
-        if _is_torch(coeffs) != _is_torch(dirs):
+        if is_torch(coeffs) != is_torch(dirs):
             raise PrtError("coeffs and dirs must be both numpy or both torch")
     order = order_from_coeffs(int(coeffs.shape[-1]))
     check_order(order)
     y = sh_basis(dirs, order, check=False)  # (N, C)
-    y = y.to(coeffs.dtype) if _is_torch(coeffs) else y
+    y = y.to(coeffs.dtype) if is_torch(coeffs) else y
     return coeffs @ y.T
 
 

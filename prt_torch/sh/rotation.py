@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from prt_torch.errors import PrtError
-from prt_torch.sh.basis import _is_torch, check_order
+from prt_torch.sh.basis import check_order, is_torch
 from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
@@ -104,10 +104,10 @@ def _band_terms(l: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
 
 
 def _check_rotation(R: Any) -> None:
-    if not (isinstance(R, np.ndarray) or _is_torch(R)):
+    if not (isinstance(R, np.ndarray) or is_torch(R)):
         raise PrtError(f"rotation must be a numpy array or torch tensor, got {type(R).__name__}")
     check_shape(R, "... 3 3", name="rotation")
-    a = R.detach().cpu().numpy() if _is_torch(R) else R
+    a = R.detach().cpu().numpy() if is_torch(R) else R
     if not np.issubdtype(a.dtype, np.floating):
         raise PrtError(f"rotation must be floating point, got {R.dtype}")
     if a.size == 0:
@@ -136,7 +136,7 @@ def sh_rotation_blocks(R: Array, order: int, check: bool = True) -> list[Array]:
     check_order(order)
     if check:
         _check_rotation(R)
-    torch_mode = _is_torch(R)
+    torch_mode = is_torch(R)
     batch = tuple(R.shape[:-2])
     flat = R.reshape(-1, 3, 3)
     nb = flat.shape[0]
@@ -191,7 +191,7 @@ def sh_rotation(R: Array, order: int, check: bool = True) -> Array:
     blocks = sh_rotation_blocks(R, order, check=check)
     batch = tuple(R.shape[:-2])
     c = order * order
-    if _is_torch(R):
+    if is_torch(R):
         out = R.new_zeros(*batch, c, c)
     else:
         out = np.zeros(batch + (c, c), dtype=R.dtype)

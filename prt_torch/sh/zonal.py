@@ -30,11 +30,11 @@ import numpy as np
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import (
-    _is_torch,
     band_of,
     check_directions,
     check_float_array,
     check_order,
+    is_torch,
     order_from_coeffs,
     sh_basis,
 )
@@ -48,7 +48,7 @@ Array = TypeVar("Array", "np.ndarray", "torch.Tensor")
 
 def _as_backend(table: np.ndarray, like: Any) -> Any:
     """``table`` (float64 numpy) converted to the backend, dtype and device of ``like``."""
-    if _is_torch(like):
+    if is_torch(like):
         import torch
 
         return torch.as_tensor(table, dtype=like.dtype, device=like.device)
@@ -98,7 +98,7 @@ def zh_to_sh(g: Array, axis: Array, check: bool = True) -> Array:
         check_shape(g, "... n", name="ZH coefficients")
         check_order(int(g.shape[-1]))
         check_directions(axis, "ZH axis")
-        if _is_torch(g) != _is_torch(axis):
+        if is_torch(g) != is_torch(axis):
             raise PrtError("ZH coefficients and axis must be both numpy or both torch")
         try:
             np.broadcast_shapes(tuple(g.shape[:-1]), tuple(axis.shape[:-1]))
@@ -109,7 +109,7 @@ def zh_to_sh(g: Array, axis: Array, check: bool = True) -> Array:
     order = int(g.shape[-1])
     y = sh_basis(axis, order, check=False)
     band = band_of(order)
-    if _is_torch(g):
+    if is_torch(g):
         import torch
 
         gb = g[..., torch.as_tensor(band, device=g.device)]
@@ -134,10 +134,10 @@ def lobes_to_sh(dirs: Array, coeffs: Array, check: bool = True) -> Array:
     if check:
         dims = check_shape(coeffs, "... K n ch", name="lobe coeffs")
         check_shape(dirs, "... K _", name="lobe coeffs' directions", dims=dims)
-    g = coeffs.swapaxes(-1, -2) if not _is_torch(coeffs) else coeffs.transpose(-1, -2)  # (..., K, ch, n)
+    g = coeffs.swapaxes(-1, -2) if not is_torch(coeffs) else coeffs.transpose(-1, -2)  # (..., K, ch, n)
     f = zh_to_sh(g, dirs[..., :, None, :], check=check)  # (..., K, ch, C)
     f = f.sum(-3)  # (..., ch, C)
-    return f.swapaxes(-1, -2) if not _is_torch(f) else f.transpose(-1, -2)
+    return f.swapaxes(-1, -2) if not is_torch(f) else f.transpose(-1, -2)
 
 
 def clamped_cosine_zh(order: int) -> np.ndarray:

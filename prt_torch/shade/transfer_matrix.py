@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError
-from prt_torch.sh.basis import _is_torch, check_directions, sh_basis
+from prt_torch.sh.basis import check_directions, is_torch, sh_basis
 from prt_torch.shapes import check_shape
 
 
@@ -49,7 +49,7 @@ def shade_matrix(T: Any, L: Any, frames: Any, view_dirs: Any, H: Any, G: Any, ti
     Returns:
         ``(..., V, 3)`` in the backend (numpy or torch) and dtype of ``T``.
     """
-    t = _is_torch(T)
+    t = is_torch(T)
     if check:
         _check(T, L, frames, view_dirs, H, G, t)
     if t:
@@ -93,7 +93,7 @@ def _check(T: Any, L: Any, frames: Any, view_dirs: Any, H: Any, G: Any, t: bool)
     if tuple(np.shape(view_dirs)) != (*lead, 3):
         raise PrtError(f"view directions must have shape {(*lead, 3)}, got {tuple(np.shape(view_dirs))}")
     for name, a in (("transfer matrices", T), ("lighting", L), ("frames", frames)):
-        finite = bool(a.isfinite().all()) if _is_torch(a) else bool(np.isfinite(np.asarray(a)).all())
+        finite = bool(a.isfinite().all()) if is_torch(a) else bool(np.isfinite(np.asarray(a)).all())
         if not finite:
             raise PrtError(f"{name} contain NaN or Inf")
     check_directions(view_dirs, "view directions")

@@ -44,7 +44,7 @@ import numpy as np
 
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import check_order, num_coeffs, sh_index
-from prt_torch.sh.product import _dense_gaunt
+from prt_torch.sh.product import dense_gaunt
 from prt_torch.sh.quadrature import sphere_directions
 from prt_torch.sh.zonal import zh_band_scale, zh_to_sh
 
@@ -89,7 +89,7 @@ def cap_complement_zh(alpha: np.ndarray, order: int) -> np.ndarray:
 def _zonal_gaunt(order: int) -> np.ndarray:
     """``(n, n, n)`` Gaunt tensor restricted to the ``m = 0`` coefficients (axial ZH about +z)."""
     idx = [sh_index(l, 0) for l in range(order)]
-    g = _dense_gaunt(order)
+    g = dense_gaunt(order)
     return np.ascontiguousarray(g[np.ix_(idx, idx, idx)])
 
 
@@ -106,15 +106,6 @@ def exp_reference(f: np.ndarray) -> np.ndarray:
     flat = m.reshape(-1, f.shape[-1], f.shape[-1])
     out = np.stack([scipy.linalg.expm(a) @ one for a in flat])
     return out.reshape(f.shape)
-
-
-def _zonal_exp(z: np.ndarray, gz: np.ndarray) -> np.ndarray:
-    import scipy.linalg
-
-    m = np.einsum("k,ijk->ij", z, gz)
-    one = np.zeros(z.size)
-    one[0] = math.sqrt(4 * math.pi)
-    return scipy.linalg.expm(m) @ one
 
 
 LOG_RIDGE = 1e-4

@@ -22,7 +22,7 @@ import math
 import numpy as np
 import torch
 
-from prt_torch.sh.basis import _norm_consts, check_order
+from prt_torch.sh.basis import check_order, norm_consts
 
 
 @functools.cache
@@ -30,7 +30,7 @@ def _monic_legendre(order: int) -> tuple[tuple[tuple[float, ...], ...], np.ndarr
     """``(qhat, scale)``: ``qhat[i]`` the monic polynomial coefficients (lowest power first) of ``Q_lm`` for the
     ``(l, m >= 0)`` pairs in :func:`_pairs` order; ``scale (C,)`` float64 ``K_lm * lead_lm`` per SH index."""
     check_order(order, 16)
-    k = _norm_consts(order)
+    k = norm_consts(order)
     qhat: list[tuple[float, ...]] = []
     scale = np.zeros(order * order)
     for l, m in _pairs(order):

@@ -6,6 +6,10 @@ layer table below: a module may import its own package and anything of a LOWER r
 rank. The one documented exception is :mod:`prt_torch.rundir`, the owner of the run directory: its
 loading methods import their owners (``bake.store``, ``rig.character``, ``models.visibility``) lazily,
 inside functions; at module level it is bottom-layer like everything else.
+
+The same parsed imports also forbid import cycles among prt_torch modules (rundir's lazy loaders are left out of
+the graph: a cycle only they close passes), ``_private`` names taken from another module, and dead code
+(top-level definitions nothing references); the rules are stated above :func:`test_no_import_cycles`.
 """
 
 from __future__ import annotations
@@ -126,3 +130,260 @@ def test_checker_catches_an_upward_edge(src: str, dst: str) -> None:
     assert edges and _unit(edges[0][0]) == dst and RANKS[_unit(edges[0][0])] > RANKS[src]
     tree = ast.parse(f"from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from prt_torch.{dst} import x\n")
     assert _imports(tree, f"prt_torch.{src}.planted") == []
+
+
+# -- no import cycles, no private names across modules, no dead code ---------------------------------------------
+#
+# Three more rules on the same parsed sources (module-level and function-level imports alike, ``if TYPE_CHECKING:``
+# blocks exempt as above):
+#
+# * no import cycle among prt_torch modules (``from pkg import sub`` is an edge to the submodule ``pkg.sub``). The one
+#   exemption: the lazy loaders of :mod:`prt_torch.rundir` (``LAZY_UP_OK``, function-level imports of ``bake``,
+#   ``rig``, ``models``) are left out of the graph, so a cycle that only they close passes; every other edge counts;
+# * no ``_private`` name imported from another module (``from prt_torch.x import _y``), nor read as an attribute of
+#   an imported prt_torch module (``import prt_torch.x as m`` / ``from prt_torch import x``, then ``m._y``); a
+#   private name is its module's own: make it public in its owner, or move it;
+# * no dead code: every top-level public function or class of prt_torch is referenced by name (a name, an
+#   attribute, an imported name, or a string naming it, as ``monkeypatch.setattr`` and ``getattr`` do) somewhere in
+#   prt_torch/, train/, export/, tests/ or scripts/ outside its own definition. Exempt: the command-module hooks
+#   (:data:`ENTRY_POINTS`), names listed in their module's ``__all__``, and decorated definitions (a decorator such
+#   as the compare methods' ``@register`` is what uses them).
+
+ROOT = PKG.parent
+#: where a public prt_torch name may be used from
+USERS = ("prt_torch", "train", "export", "tests", "scripts")
+#: names called by the CLI machinery, never by name (``prt_torch.cli.add_command_modules``, ``python -m``)
+ENTRY_POINTS = frozenset({"run", "add_arguments", "main"})
+
+
+def _sources() -> dict[str, str]:
+    """``{module name: source}`` of every prt_torch module."""
+    return {m: p.read_text() for m, p in _modules()}
+
+
+def _import_nodes(tree: ast.AST) -> list[tuple[ast.Import | ast.ImportFrom, bool]]:
+    """Every import statement outside ``if TYPE_CHECKING:``, with whether it runs inside a function."""
+    found: list[tuple[ast.Import | ast.ImportFrom, bool]] = []
+
+    def visit(node: ast.AST, in_func: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                for c in child.orelse:
+                    visit(c, in_func)
+                continue
+            if isinstance(child, (ast.Import, ast.ImportFrom)):
+                found.append((child, in_func))
+            visit(child, in_func or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
+
+    visit(tree, False)
+    return found
+
+
+def _from_module(node: ast.ImportFrom, module: str, is_pkg: bool) -> str:
+    """The absolute module of a ``from ... import`` (relative levels resolved against ``module``)."""
+    if not node.level:
+        return node.module or ""
+    parts = module.split(".") + ([""] if is_pkg else [])
+    base = ".".join(parts[: len(parts) - node.level])
+    return f"{base}.{node.module}" if node.module else base
+
+
+def _is_package(module: str, sources: dict[str, str]) -> bool:
+    return any(m.startswith(module + ".") for m in sources)
+
+
+def _edges(sources: dict[str, str]) -> dict[str, dict[str, bool]]:
+    """``{module: {imported prt_torch module: only lazily}}``, the rundir loaders' exempt edges left out."""
+    graph: dict[str, dict[str, bool]] = {m: {} for m in sources}
+
+    def owner(name: str) -> str | None:
+        while name and name not in sources:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    for module, text in sources.items():
+        for node, lazy in _import_nodes(ast.parse(text)):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                mod = _from_module(node, module, _is_package(module, sources))
+                targets = [f"{mod}.{a.name}" if f"{mod}.{a.name}" in sources else mod for a in node.names]
+            for t in targets:
+                dst = owner(t) if t.startswith("prt_torch") else None
+                if dst is None or dst == module:
+                    continue
+                if lazy and _unit(dst) in LAZY_UP_OK.get(_unit(module), set()):
+                    continue  # the run directory's documented lazy loaders
+                graph[module][dst] = graph[module].get(dst, True) and lazy
+    return graph
+
+
+def _cycles(sources: dict[str, str]) -> list[list[str]]:
+    """The import cycles of ``sources``: every strongly connected component of more than one module (Tarjan)."""
+    graph = _edges(sources)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def connect(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            connect(v)
+    return sorted(out)
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _private_imports(sources: dict[str, str]) -> list[str]:
+    """``module:line: name`` of every private name a module takes from another prt_torch module."""
+    bad = []
+    for module, text in sources.items():
+        tree = ast.parse(text)
+        aliases: set[str] = set()  # local names bound to another prt_torch module
+        for node, _lazy in _import_nodes(tree):
+            if isinstance(node, ast.Import):
+                aliases.update(a.asname for a in node.names if a.asname and a.name.startswith("prt_torch"))
+                continue
+            mod = _from_module(node, module, _is_package(module, sources))
+            if not mod.startswith("prt_torch") or mod == module:
+                continue
+            for a in node.names:
+                if f"{mod}.{a.name}" in sources:
+                    aliases.add(a.asname or a.name)
+                elif _private(a.name):
+                    bad.append(f"{module}:{node.lineno}: from {mod} import {a.name}")
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and _private(node.attr) and isinstance(node.value, ast.Name)
+                    and node.value.id in aliases):
+                bad.append(f"{module}:{node.lineno}: {node.value.id}.{node.attr}")
+    return bad
+
+
+def _referenced(texts: list[str]) -> set[str]:
+    """Every name the sources use: names, attributes, imported names, and identifiers inside string constants."""
+    used: set[str] = set()
+    for text in texts:
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.Name):
+                used.add(node.id)
+            elif isinstance(node, ast.Attribute):
+                used.add(node.attr)
+            elif isinstance(node, ast.alias):
+                used.add(node.name.rpartition(".")[2])
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str) and len(node.value) < 200:
+                used.update(w.rpartition(".")[2] for w in node.value.split() if w.replace(".", "_").isidentifier())
+    return used
+
+
+def _dead(sources: dict[str, str], users: list[str]) -> list[str]:
+    """``module.name`` of every top-level public function or class of ``sources`` that no source of ``sources``
+    or ``users`` references by name (exempt: :data:`ENTRY_POINTS`, ``__all__`` entries, decorated definitions), and
+    of every private one its own module does not use (dunders such as a module ``__getattr__`` are hooks)."""
+    used = _referenced([*sources.values(), *users])
+    bad = []
+    for module, text in sources.items():
+        tree = ast.parse(text)
+        exported: set[str] = set()
+        for node in tree.body:
+            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "__all__" for t in node.targets):
+                exported.update(e.value for e in ast.walk(node.value) if isinstance(e, ast.Constant))
+        own: set[str] | None = None
+        for node in tree.body:
+            defs = (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)
+            if not isinstance(node, defs) or node.name.startswith("__"):
+                continue
+            if node.name.startswith("_"):  # private: only its own module may use it
+                own = _referenced([text]) if own is None else own
+                if node.name not in own and not node.decorator_list:
+                    bad.append(f"{module}.{node.name}")
+                continue
+            if node.name in ENTRY_POINTS or node.name in exported or node.decorator_list or node.name in used:
+                continue
+            bad.append(f"{module}.{node.name}")
+    return bad
+
+
+def _user_sources() -> list[str]:
+    return [f.read_text() for d in USERS[1:] for f in sorted((ROOT / d).rglob("*.py")) if "__pycache__" not in f.parts]
+
+
+def test_no_import_cycles() -> None:
+    cycles = _cycles(_sources())
+    assert not cycles, "import cycles (move the shared piece down into its owner):\n" + "\n".join(
+        " <-> ".join(c) for c in cycles)
+
+
+def test_no_private_names_across_modules() -> None:
+    bad = _private_imports(_sources())
+    assert not bad, "private names used outside their module (make them public in the owner):\n" + "\n".join(bad)
+
+
+def test_no_dead_code() -> None:
+    bad = _dead(_sources(), _user_sources())
+    assert not bad, "top-level public names nothing references (remove them):\n" + "\n".join(bad)
+
+
+def test_checker_catches_a_cycle() -> None:
+    """A planted two-module cycle closed by a function-level import is caught, through ``from pkg import sub``
+    too; a ``TYPE_CHECKING`` import does not close one, nor do the run directory's lazy loaders alone."""
+    two = {"prt_torch.a": "from prt_torch.b import f\n", "prt_torch.b": "def f():\n    from prt_torch.a import g\n"}
+    assert _cycles(two) == [["prt_torch.a", "prt_torch.b"]]
+    pkg = {"prt_torch.p": "from prt_torch.p import sub\nX = 1\n", "prt_torch.p.sub": "from prt_torch.p import X\n"}
+    assert _cycles(pkg) == [["prt_torch.p", "prt_torch.p.sub"]]
+    typed = {"prt_torch.a": "from prt_torch.b import f\n",
+             "prt_torch.b": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from prt_torch.a import g\n"}
+    assert _cycles(typed) == []
+    lazy = {"prt_torch.rundir": "def dataset():\n    from prt_torch.bake.store import open_dataset\n",
+            "prt_torch.bake.store": "from prt_torch.rundir import RunDir\n"}
+    assert _cycles(lazy) == []
+    lazy["prt_torch.rundir"] = "from prt_torch.bake.store import open_dataset\n"  # at module level: not exempt
+    assert _cycles(lazy) == [["prt_torch.bake.store", "prt_torch.rundir"]]
+
+
+def test_checker_catches_a_private_import() -> None:
+    """``from prt_torch.x import _y`` (also lazily and relatively) and ``x._y`` on an imported module are caught;
+    a module's own private names, dunders and public names are not."""
+    src = {"prt_torch.x": "_y = 1\nz = 2\n",
+           "prt_torch.a": "def f():\n    from prt_torch.x import _y\n",
+           "prt_torch.p": "", "prt_torch.p.q": "_r = 1\n", "prt_torch.p.s": "from .q import _r\n",
+           "prt_torch.b": "from prt_torch import x\nv = x._y\n",
+           "prt_torch.c": "import prt_torch.x as m\nv = m._y\n",
+           "prt_torch.ok": "from prt_torch.x import z\nfrom prt_torch import x\nv = x.__name__\n_w = 1\nu = _w\n"}
+    bad = _private_imports(src)
+    assert [b.split(":")[0] for b in bad] == ["prt_torch.a", "prt_torch.p.s", "prt_torch.b", "prt_torch.c"], bad
+
+
+def test_checker_catches_dead_code() -> None:
+    """An unreferenced public function or class is caught, and a private one its module does not use; one
+    referenced from a user source (a test, a string naming it), an entry point, an ``__all__`` entry, a decorated
+    definition, a private one its module uses and a dunder hook are not."""
+    src = {"prt_torch.m": ("def dead():\n    pass\nclass Dead:\n    pass\ndef used():\n    pass\ndef patched():\n"
+                           "    pass\ndef run(args):\n    pass\n__all__ = ['exported']\ndef exported():\n    pass\n"
+                           "@register\nclass Method:\n    pass\ndef _private():\n    pass\ndef _helper():\n    pass\n"
+                           "x = _helper()\ndef __getattr__(name):\n    pass\n")}
+    users = ["from prt_torch.m import used\n", "monkeypatch.setattr('prt_torch.m.patched', None)\n"]
+    assert _dead(src, users) == ["prt_torch.m.dead", "prt_torch.m.Dead", "prt_torch.m._private"]

@@ -20,7 +20,8 @@ import torch
 
 from prt_torch.bake.store import open_dataset
 from prt_torch.fit.config import TrainConfig
-from prt_torch.fit.train import fit_ridge_kind, predict, reduce_training, train_dataset
+from prt_torch.fit.kinds import fit_ridge_kind, reduce_training
+from prt_torch.fit.train import predict, train_dataset
 from prt_torch.metrics import vis_rel_err
 from prt_torch.models import KINDS, load_metadata, load_model
 from prt_torch.models.storage import compact_floats, storage_table

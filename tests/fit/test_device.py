@@ -26,16 +26,9 @@ from prt_torch.errors import PrtError
 from prt_torch.fit.config import TrainConfig
 from prt_torch.fit.device import fit_device, resolve_device
 from prt_torch.fit.inputs import JointInputs
+from prt_torch.fit.kinds import FitResult, Reduced, fit_mlp_kind, fit_ridge_kind, reduce_training
 from prt_torch.fit.mlp import MLPObjective, MLPParams, reference_objective
-from prt_torch.fit.train import (
-    FitResult,
-    Reduced,
-    fit_mlp_kind,
-    fit_ridge_kind,
-    reduce_training,
-    train_dataset,
-    train_key,
-)
+from prt_torch.fit.train import train_dataset, train_key
 from prt_torch.rundir import stage_key
 
 SMALL = dict(alphas=[1e-2, 1.0], mlp_alphas=[0.1, 1.0], neurons=[4, 6], cv_iter=15, max_iter=30)

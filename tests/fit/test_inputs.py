@@ -13,7 +13,8 @@ from sklearn.linear_model import Ridge
 from prt_torch.errors import PrtError
 from prt_torch.fit.config import TrainConfig
 from prt_torch.fit.inputs import cluster_joints, joint_inputs
-from prt_torch.fit.train import _masked_ridge, train_dataset
+from prt_torch.fit.kinds import _masked_ridge
+from prt_torch.fit.train import train_dataset
 from prt_torch.models import load_model
 
 # skeleton 0 (root) -> 1 -> 2, 0 -> 3: non-root joints 1, 2, 3 own feature columns 0-5, 6-11, 12-17

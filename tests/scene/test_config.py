@@ -8,7 +8,8 @@ import pytest
 
 from prt_torch.config import config_from_dict, load_config
 from prt_torch.errors import PrtError
-from prt_torch.scene.config import SceneConfig, load_scene, scene_from_dict
+from prt_torch.scene.config import SceneConfig, scene_from_dict
+from prt_torch.scene.load import load_scene
 
 REPO = Path(__file__).resolve().parents[2]
 

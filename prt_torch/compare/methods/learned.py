@@ -21,7 +21,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, register
+from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, register
 
 
 class Learned(MethodBase):

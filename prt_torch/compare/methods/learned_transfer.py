@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
+from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
 from prt_torch.errors import DamagedArtifact, check
 from prt_torch.export.transfer_shading import ARRAYS, light_dot, light_input, transfer_shading
 

@@ -16,7 +16,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, register
+from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, register
 from prt_torch.deform.local_soa import offsets_inputs
 from prt_torch.export.local_data import neighbour_dtype
 

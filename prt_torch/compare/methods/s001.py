@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
+from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
 from prt_torch.errors import check
 
 #: compared frames scored against the baked matrices in info() (evenly spaced)

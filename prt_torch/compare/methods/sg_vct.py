@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
+from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
 from prt_torch.errors import PrtError
 
 

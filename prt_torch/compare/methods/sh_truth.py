@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, register
+from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, register
 
 
 @register

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.compare.methods import CompareRun, FrameBatch, FrameSet, MethodBase, register
+from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, register
 from prt_torch.errors import check
 
 
