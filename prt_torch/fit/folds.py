@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 
 def blocked_folds(clip_id: np.ndarray, frame_index: np.ndarray, k: int = 4,
@@ -24,14 +25,15 @@ def blocked_folds(clip_id: np.ndarray, frame_index: np.ndarray, k: int = 4,
     frame_index = np.asarray(frame_index)
     if train_only is not None:
         train_only = np.asarray(train_only, dtype=bool)
-        check(train_only.shape == clip_id.shape, "folds: train_only must be (F,)")
+        check_shape(train_only, clip_id.shape, name="folds: train_only")
         check(int((~train_only).sum()) >= k, f"folds: {int((~train_only).sum())} validation frames cannot make "
                                              f"{k} folds (cv_validate: clips needs motion clips in training)")
         out = np.full(clip_id.shape[0], -1, dtype=np.int64)
         out[~train_only] = blocked_folds(clip_id[~train_only], frame_index[~train_only], k)
         return out
     n = clip_id.shape[0]
-    check(clip_id.shape == frame_index.shape and clip_id.ndim == 1, "folds: clip_id and frame_index must be (F,)")
+    dims = check_shape(clip_id, "F", name="folds: clip_id")
+    check_shape(frame_index, "F", name="folds: frame_index", dims=dims)
     check(k >= 2, f"folds: need k >= 2, got {k}")
     check(n >= k, f"folds: {n} frames cannot make {k} folds")
     clips, counts = np.unique(clip_id, return_counts=True)

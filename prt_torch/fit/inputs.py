@@ -25,6 +25,7 @@ import numpy as np
 
 from prt_torch.errors import check
 from prt_torch.rig.features import FEATURES_PER_JOINT
+from prt_torch.shapes import check_shape
 
 
 @dataclass
@@ -65,8 +66,7 @@ def joint_inputs(pose: np.ndarray, parents: np.ndarray, joints: np.ndarray, weig
     Feature layout (prt_torch.rig.features): 6 columns per non-root joint in index order."""
     pose = np.asarray(pose, dtype=np.float64)
     nonroot = np.flatnonzero(np.asarray(parents) >= 0)
-    check(pose.ndim == 2 and pose.shape[1] == FEATURES_PER_JOINT * len(nonroot),
-          f"pose features: expected (F, {FEATURES_PER_JOINT * len(nonroot)}) for this skeleton, got {pose.shape}")
+    check_shape(pose, ("F", FEATURES_PER_JOINT * len(nonroot)), name="pose features (of this skeleton)")
     mean, sd = pose.mean(0), pose.std(0)
     live = np.flatnonzero(sd > 1e-6 * max(float(sd.max()), 1e-30))
     check(len(live) > 0, "pose features: every column is constant over the training frames")

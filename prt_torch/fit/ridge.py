@@ -16,6 +16,7 @@ import torch
 
 from prt_torch.errors import check
 from prt_torch.fit.device import Array, like, permute, zeros
+from prt_torch.shapes import check_shape
 
 
 def ridge_path(features: Array, targets: Array, alphas: Any,
@@ -35,8 +36,8 @@ def ridge_path(features: Array, targets: Array, alphas: Any,
         y = np.asarray(targets, dtype=np.float64)
         alphas = np.asarray(alphas, dtype=np.float64)
         svd, where, einsum = np.linalg.svd, np.where, np.einsum
-    check(f.ndim == 2 and y.shape[0] == f.shape[0], f"ridge: features {tuple(f.shape)} and targets "
-                                                    f"{tuple(y.shape)} disagree")
+    dims = check_shape(f, "N D", name="ridge: features")
+    check_shape(y, "N ...", name="ridge: targets", dims=dims)
     check(bool((alphas >= 0).all()), "ridge: alphas must be >= 0")
     if sample_mask is not None:
         f, y = f[sample_mask], y[sample_mask]

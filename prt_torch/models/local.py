@@ -37,6 +37,7 @@ import torch
 from torch import nn
 
 from prt_torch.errors import DamagedArtifact, PrtError, check
+from prt_torch.shapes import check_shape
 
 #: model kinds of the local family
 LOCAL_KINDS = ("linear", "mlp")
@@ -56,8 +57,8 @@ def neighbour_pattern(rest: np.ndarray, rest_frames: np.ndarray, radii: list[flo
 
     x = np.asarray(rest, dtype=np.float64)
     f = np.asarray(rest_frames, dtype=np.float64)
-    check(x.ndim == 2 and x.shape[1] == 3, f"rest positions must be (V, 3), got {x.shape}")
-    check(f.shape == (x.shape[0], 3, 3), f"rest frames must be ({x.shape[0]}, 3, 3), got {f.shape}")
+    dims = check_shape(x, "V 3", name="rest positions")
+    check_shape(f, "V 3 3", name="rest frames", dims=dims)
     check(len(radii) >= 1 and all(r > 0 for r in radii) and n_angles >= 1, "need radii > 0 and n_angles >= 1")
     a = 2 * np.pi * np.arange(n_angles) / n_angles
     r = np.asarray(radii, dtype=np.float64)
@@ -110,8 +111,7 @@ class LocalHead(nn.Module):
         m = torch.as_tensor(np.asarray(mean, np.float32))
         check(kind == "linear" and len(ws) == 1 and not bs or kind == "mlp" and len(bs) == len(ws) - 1 >= 1,
               f"{kind} local model: {len(ws)} weights and {len(bs)} biases")
-        check(m.ndim == 2 and m.shape[1] == ws[-1].shape[1],
-              f"mean must be (V, {ws[-1].shape[1]}), got {tuple(m.shape)}")
+        check_shape(m, ("V", ws[-1].shape[1]), name="mean")
         for a, b in zip(ws[:-1], ws[1:], strict=True):
             check(a.shape[1] == b.shape[0], f"layer sizes do not chain: {tuple(a.shape)} then {tuple(b.shape)}")
         if bs:
@@ -147,7 +147,7 @@ class LocalVisibility(nn.Module):
                  meta: dict[str, Any] | None = None) -> None:
         super().__init__()
         nb = torch.as_tensor(np.asarray(neighbours), dtype=torch.int64)
-        check(nb.ndim == 2, f"neighbours must be (V, S), got {tuple(nb.shape)}")
+        check_shape(nb, "V S", name="neighbours")
         self.head = LocalHead(kind, weights, biases, mean)
         check(self.head.n_inputs == 3 * nb.shape[1] and self.head.mean.shape[0] == nb.shape[0],
               f"local model: {self.head.n_inputs} inputs and {self.head.mean.shape[0]} vertices for neighbours "

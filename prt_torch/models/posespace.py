@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 
 from prt_torch.errors import DamagedArtifact, check
 from prt_torch.io import atomic_write_bytes, read_npz_with_meta
+from prt_torch.shapes import check_shape
 
 FEATURES_PER_JOINT = 6
 
@@ -100,8 +101,8 @@ def segment_rotations(frames: np.ndarray, ref: np.ndarray, segment: np.ndarray, 
     frames = np.asarray(frames, dtype=np.float64)
     ref = np.asarray(ref, dtype=np.float64)
     v = ref.shape[0]
-    check(ref.shape == (v, 3, 3) and frames.shape[-3:] == (v, 3, 3),
-          f"frames must be (..., {v}, 3, 3) like the reference frames, got {frames.shape}")
+    check_shape(ref, "V 3 3", name="reference frames")
+    check_shape(frames, ("*", v, 3, 3), name="frames")
     m = np.einsum("...vji,vjk->...vik", frames, ref).reshape(*frames.shape[:-3], v, 9)
     onehot = np.zeros((n_segments, v))
     onehot[np.asarray(segment), np.arange(v)] = 1.0
@@ -138,7 +139,7 @@ class PoseSpace:
         k = self.joint_weights.shape[0]
         check(a == FEATURES_PER_JOINT * self.joint_weights.shape[1],
               f"pose features ({a}) do not match {self.joint_weights.shape[1]} joints x 6")
-        check(self.groups.shape == (k, p), f"groups must be ({k}, {p}), got {self.groups.shape}")
+        check_shape(self.groups, (k, p), name="groups")
         check(bool(np.all(np.isfinite(self.poses))), "sampled poses contain NaN or inf")
         self._scales = feature_scale(self.joint_weights)  # (K, A)
         self._trees = [cKDTree(self.poses * self._scales[i]) for i in range(k)]
@@ -196,7 +197,8 @@ def interpolate_coefficients(coeffs: np.ndarray, idx: np.ndarray, alpha: np.ndar
     """Eq. 7: ``lambda (V, nb) = sum_l alpha[v, l] coeffs[idx[v, l], v]`` for ``coeffs (P, V, nb)`` (float or
     dequantised), per-vertex neighbours ``idx (V, L)`` and weights ``alpha (V, L)``."""
     v = coeffs.shape[1]
-    check(idx.shape == alpha.shape and idx.shape[0] == v, f"idx/alpha must be ({v}, L), got {idx.shape}")
+    dims = check_shape(idx, (v, "L"), name="idx")
+    check_shape(alpha, (v, "L"), name="alpha", dims=dims)
     c = coeffs[idx, np.arange(v)[:, None]]  # (V, L, nb)
     return np.einsum("vl,vlb->vb", alpha, c)
 
@@ -269,7 +271,7 @@ class CompressedTransfer:
         return PoseSpace(self.poses, self.joint_weights, self.groups, float(self.meta.get("scale", 1.0)))
 
     def _vertex_axis(self, idx: np.ndarray) -> np.ndarray:
-        check(idx.shape[0] == self.n_vertices, f"pose indices must be (V, ...), got {idx.shape}")
+        check_shape(idx, (self.n_vertices, "*"), name="pose indices")
         return np.arange(self.n_vertices).reshape((-1,) + (1,) * (idx.ndim - 1))
 
     def pose_cluster(self, idx: np.ndarray) -> np.ndarray:

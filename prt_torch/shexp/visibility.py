@@ -41,6 +41,7 @@ import torch
 from prt_torch.conventions import BELOW_HORIZON as CONVENTIONS
 from prt_torch.errors import PrtError
 from prt_torch.sh.product import hemisphere_product
+from prt_torch.shapes import check_shape
 from prt_torch.shexp.exponential import SHExponential, check_method
 from prt_torch.shexp.tables import cos_log_table
 from prt_torch.shexp.zonal_sum import zonal_sum
@@ -164,12 +165,9 @@ def shexp_visibility(points: Any, centers: Any, radii: Any, order: int, frames: 
     dev = p.device
     c = _as_tensor(centers, "sphere centres", dev)
     r = _as_tensor(radii, "sphere radii", dev)
-    if p.ndim < 2 or p.shape[-1] != 3:
-        raise PrtError(f"receiver points must be (..., V, 3), got {tuple(p.shape)}")
-    if c.ndim < 2 or c.shape[-1] != 3:
-        raise PrtError(f"sphere centres must be (..., S, 3), got {tuple(c.shape)}")
-    if r.ndim < 1 or r.shape[-1] != c.shape[-2]:
-        raise PrtError(f"sphere radii must be (..., S) with S = {c.shape[-2]}, got {tuple(r.shape)}")
+    dims = check_shape(p, "... V 3", name="receiver points")
+    check_shape(c, "... S 3", name="sphere centres", dims=dims)
+    check_shape(r, "... S", name="sphere radii", dims=dims)
     if c.shape[-2] < 1:
         raise PrtError("at least one sphere is needed")
     if bool((r <= 0).any()):
@@ -177,11 +175,7 @@ def shexp_visibility(points: Any, centers: Any, radii: Any, order: int, frames: 
     f = None
     if frames is not None:
         f = _as_tensor(frames, "vertex frames", dev)
-        if f.ndim < 3 or tuple(f.shape[-2:]) != (3, 3):
-            raise PrtError(f"vertex frames must be (..., V, 3, 3) matching points {tuple(p.shape)}, got "
-                           f"{tuple(f.shape)}")
-        if f.shape[-3] != p.shape[-2]:
-            raise PrtError(f"vertex frames have {f.shape[-3]} vertices, points {p.shape[-2]}")
+        check_shape(f, "... V 3 3", name="vertex frames", dims=dims)
     elif below_horizon is not None:
         raise PrtError("below_horizon needs vertex frames (it is defined in the local frame)")
     try:

@@ -34,6 +34,7 @@ import numpy as np
 
 from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path, atomic_write_bytes, atomic_write_json
+from prt_torch.shapes import check_shape
 
 #: version of the site format (manifest key ``format``)
 SITE_FORMAT = "prt_torch.web/1"
@@ -168,7 +169,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
             sources.append((f"motion:{motion.name}", motion))
     for name, clip in sources:
         local = np.asarray(clip.local, dtype=np.float64)
-        check(local.ndim == 4 and local.shape[1:] == (ch.num_joints, 4, 4), f"clip {name!r}: bad local transforms")
+        check_shape(local, ("F", ch.num_joints, 4, 4), name=f"clip {name!r}: local transforms")
         key = f"clip:{name}"
         blob.add(key, local[:, :, :3, :].reshape(len(local), ch.num_joints, 12), "float32")
         clips.append({"name": name, "fps": float(clip.fps), "frames": int(len(local)), "array": key})
