@@ -96,6 +96,10 @@ def test_npz_and_rpo_files(tmp_path: Path) -> None:
              meta=np.array([RPO_FORMAT_VERSION + 99, 2, 0, 0]), name=np.array("x"))
     with pytest.raises(StaleArtifact, match="unsupported RPO file version"):
         RPO.load(old)
+    np.savez(old, u=np.full((4, 4), np.nan), w=np.zeros(4), tint=np.zeros(3),
+             meta=np.array([RPO_FORMAT_VERSION, 2, 0, 0]), name=np.array("x"))
+    with pytest.raises(DamagedArtifact, match="RPO factors"):
+        RPO.load(old)
 
 
 def test_model_payloads(tmp_path: Path) -> None:

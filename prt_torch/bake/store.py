@@ -104,6 +104,11 @@ def recorded_config(attrs: Any) -> dict[str, Any]:
     return dict(cfg) if isinstance(cfg, dict) else {}
 
 
+def recorded_fps(attrs: Any) -> float | None:
+    """The frame rate the bake posed the clips at (the recorded ``character.fps``; None: each clip's own)."""
+    return (recorded_config(attrs).get("character") or {}).get("fps")
+
+
 def below_horizon_of(attrs: dict[str, Any] | None) -> str:
     """The ``bake.below_horizon`` convention of a store's (or a compare run's bake) attributes: ``"zero"`` for
     stores written before it was recorded; a one-line :class:`PrtError` for an unknown value."""
@@ -726,8 +731,8 @@ class BakedDataset:
         return recorded_config(self.attrs)
 
     def recorded_fps(self) -> float | None:
-        """The frame rate the bake posed the clips at (the recorded ``character.fps``; None: each clip's own)."""
-        return (self.recorded_config().get("character") or {}).get("fps")
+        """The frame rate the bake posed the clips at (:func:`recorded_fps` of :attr:`attrs`)."""
+        return recorded_fps(self.attrs)
 
     def character(self) -> Character:
         """The baked character of the run directory holding the dataset (hash-checked)."""

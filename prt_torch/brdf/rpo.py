@@ -132,7 +132,10 @@ class RPO:
             raise DamagedArtifact(f"{p.name}: not an RPO file ({type(exc).__name__}: {exc})".splitlines()[0]) from None
         if meta.shape != (4,) or int(meta[0]) != RPO_FORMAT_VERSION:
             raise StaleArtifact(f"{p.name}: unsupported RPO file version")
-        rpo = cls.from_factors(u, w, tint, name, float(meta[2]), float(meta[3]))
+        try:
+            rpo = cls.from_factors(u, w, tint, name, float(meta[2]), float(meta[3]))
+        except PrtError as exc:  # factors that do not fit together (shapes, NaN): a damaged file
+            raise DamagedArtifact(str(exc)) from None
         if rpo.order != int(meta[1]):
             raise DamagedArtifact(f"{p.name}: RPO order {int(meta[1])} does not match its {u.shape[1]} coefficients")
         return rpo

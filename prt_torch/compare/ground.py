@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch import metrics as M
+from prt_torch.bake.store import recorded_fps
 from prt_torch.errors import PrtError, check
 from prt_torch.eval.shipping import (
     DIFFUSE,
@@ -115,7 +116,7 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
     gp = shexp_graph_path(run)
     if gp is None:
         raise PrtError(f"{run.path}: its scene needs the shexp graph and blocker spheres: run `prt export {run.path}`")
-    fps = float(ctx.dataset.recorded_fps() or ctx.character.clip(fs.clips[0]).fps)
+    fps = float(recorded_fps(ctx.dataset.attrs) or ctx.character.clip(fs.clips[0]).fps)
     actors, bundles = _actors(ctx, scene, fs.clips[0], fps, threads)
     n_f = fs.n_frames
     ground = scene_ground(scene.ground, actors, fps, int(max(fs.frame_index) + 1)) if scene.ground else None

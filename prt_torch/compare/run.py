@@ -16,6 +16,7 @@ import numpy as np
 
 from prt_torch import metrics as M
 from prt_torch.bake.deformable import is_deformable
+from prt_torch.bake.store import recorded_config, recorded_fps
 from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
 from prt_torch.errors import PrtError, check
@@ -87,7 +88,7 @@ def clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> Fr
         return deformable_clip_frames(ctx, clip, max_frames)
     if clip not in ch.clips:
         raise PrtError(f"unknown clip {clip!r} for character {ch.name!r}; available: {sorted(ch.clips)}")
-    fps = ds.recorded_fps()
+    fps = recorded_fps(ds.attrs)
     poses = ch.pose(clip, fps=fps)
     idx = evenly_spaced(poses.num_frames, max_frames if max_frames is not None else poses.num_frames)
     skin = poses.skin[idx]
@@ -106,7 +107,7 @@ def deformable_clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = 
     from prt_torch.config import config_from_dict
 
     ds = ctx.dataset
-    cfg = config_from_dict(ds.recorded_config(), source=f"{ds.path} attrs['config']")
+    cfg = config_from_dict(recorded_config(ds.attrs), source=f"{ds.path} attrs['config']")
     cfg.run_dir = ctx.run.path
     subject = load_subject(cfg)
     seq = sequence_frames(cfg, subject, open_cache(cfg), clip)
@@ -191,7 +192,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
     if motion is not None:
         from prt_torch.rig.retarget import retarget_file
 
-        fps = motion_fps or ctx.dataset.recorded_fps()
+        fps = motion_fps or recorded_fps(ctx.dataset.attrs)
         mclip, report = retarget_file(motion, ctx.character, fps=fps)
         clip = f"motion:{mclip.name}"
         ctx.character.clips[clip] = mclip

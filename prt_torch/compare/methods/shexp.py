@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from prt_torch.bake.store import recorded_fps
 from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, register
 from prt_torch.errors import check
 
@@ -32,7 +33,7 @@ def frame_skins(run: CompareRun, frames: FrameSet) -> np.ndarray:
     """``(F, J, 4, 4)`` skinning matrices of the compared frames: each clip posed at the dataset's frame rate
     (``compare.run.clip_frames`` / the bake), rows picked by ``frame_index``."""
     ch = run.character
-    fps = run.dataset.recorded_fps()
+    fps = recorded_fps(run.dataset.attrs)
     out = np.empty((frames.n_frames, ch.num_joints, 4, 4), dtype=np.float64)
     for clip in dict.fromkeys(frames.clips):
         check(clip in ch.clips, f"shexp: clip {clip!r} is not a clip of character {ch.name!r}")
