@@ -15,6 +15,7 @@ import numpy as np
 from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path
 from prt_torch.rundir import RunDir
+from prt_torch.shapes import check_shape
 
 
 def neighbour_dtype(n_vertices: int) -> Any:
@@ -42,5 +43,6 @@ def load_neighbours(run: RunDir) -> np.ndarray:
             nb = np.asarray(d["neighbours"], dtype=np.int32)
     except Exception as exc:  # noqa: BLE001 - any read problem is a damaged file
         raise PrtError(f"{path}: not a local model data file ({type(exc).__name__})") from None
-    check(nb.ndim == 2 and nb.size > 0, f"{path}: neighbours must be (V, S), got {nb.shape}")
+    check_shape(nb, "V S", name=f"{path}: neighbours")
+    check(nb.size > 0, f"{path}: neighbours must be (V, S), got {nb.shape}")
     return nb

@@ -55,6 +55,7 @@ from prt_torch.player.posing import PoseBatch
 from prt_torch.player.timing import FrameTimer
 from prt_torch.rundir import RunDir
 from prt_torch.runtime.session import OrtGraph
+from prt_torch.shapes import check_shape
 
 #: graph modes of the deformable player
 DEFORMABLE_MODES = ("fused", "split", "overlap", "pipeline")
@@ -186,16 +187,15 @@ class DeformablePlayer(Player):
         :class:`PrtError` for a wrong shape or vertex count, NaN/Inf, missing or extra body features."""
         v = self.bundle.n_vertices
         pos = np.asarray(positions, dtype=np.float32)
-        check(pos.ndim == 3 and pos.shape[2] == 3 and pos.shape[0] >= 1,
-              f"positions must be (T, V, 3) with T >= 1, got shape {pos.shape}")
+        check_shape(pos, "T V 3", name="positions")
+        check(pos.shape[0] >= 1, f"positions must be (T, V, 3) with T >= 1, got shape {pos.shape}")
         check(pos.shape[1] == v, f"positions have {pos.shape[1]} vertices, the run's subject {v}")
         bad = ~np.isfinite(pos).all(axis=(1, 2))
         check(not bad.any(), f"positions contain NaN or Inf (first at frame {int(np.argmax(bad))})")
         if self.n_body:
             check(body is not None, f"this run takes {self.n_body} body features per frame with the positions")
             b = np.asarray(body, dtype=np.float32)
-            check(b.shape == (pos.shape[0], self.n_body),
-                  f"body features must be ({pos.shape[0]}, {self.n_body}), got shape {b.shape}")
+            check_shape(b, (pos.shape[0], self.n_body), name="body features")
             check(bool(np.isfinite(b).all()), "body features contain NaN or Inf")
             body = np.ascontiguousarray(b)
         else:

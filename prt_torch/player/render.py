@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prt_torch.errors import PrtError
+from prt_torch.shapes import check_shape
 
 #: the largest triangle id the id pass encodes (24-bit colours; 0 is the background)
 MAX_ID = (1 << 24) - 1
@@ -162,9 +163,9 @@ class MeshRenderer:
 
         vertices = np.asarray(vertices, dtype=np.float32)
         faces = np.asarray(faces)
-        if vertices.ndim != 2 or vertices.shape[1] != 3:
-            raise PrtError(f"renderer vertices must have shape (V, 3), got {vertices.shape}")
-        if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        check_shape(vertices, "V 3", name="renderer vertices")
+        check_shape(faces, "T 3", name="renderer faces")
+        if len(faces) == 0:
             raise PrtError(f"renderer faces must have shape (T, 3) with T > 0, got {faces.shape}")
         if faces.min() < 0 or faces.max() >= len(vertices):
             raise PrtError(f"renderer faces index outside 0..{len(vertices) - 1}")

@@ -75,6 +75,7 @@ from prt_torch.errors import check
 from prt_torch.rig.character import Character
 from prt_torch.rig.clip import Clip
 from prt_torch.rig.rotations import axis_angle_matrix, rotation_part
+from prt_torch.shapes import check_shape
 
 MODES = ("uniform", "sparse", "cpca")
 
@@ -261,7 +262,8 @@ def fit_cpca(features: np.ndarray, clusters: int, components: int, random_state:
     ``components > A`` are :class:`PrtError`.
     """
     x = np.asarray(features, dtype=np.float64)
-    check(x.ndim == 2 and x.shape[0] >= 1 and x.shape[1] >= 1, f"cpca features must be (F, A), got {x.shape}")
+    check_shape(x, "F A", name="cpca features")
+    check(x.shape[0] >= 1 and x.shape[1] >= 1, f"cpca features must be (F, A), got {x.shape}")
     check(bool(np.all(np.isfinite(x))), "cpca features contain NaN or inf")
     f, a = x.shape
     check(components <= a, f"random pose cpca_components={components} exceeds the pose feature dimension {a} "
