@@ -154,4 +154,6 @@ def test_keyboard_shortcuts_follow_the_python_player(page: Any) -> None:
     assert after["angle"] == pytest.approx(before["angle"] + np.radians(15))
     assert after["az"] == pytest.approx(before["az"] + np.radians(10))
     assert after["playing"] != before["playing"]
+    page.page.keyboard.press("r")  # the camera back where it was: the module's other tests share this page
+    assert page.page.evaluate(get)["az"] == pytest.approx(before["az"])
     page.page.evaluate("s => window.prt.setState(s)", {"playing": False, "paused": True})
