@@ -17,6 +17,7 @@ Spec tokens (a whitespace- or comma-separated string, or a sequence of ``int`` /
 
 from __future__ import annotations
 
+import numbers
 import re
 from collections.abc import Sequence
 from typing import Any
@@ -32,8 +33,8 @@ def _tokens(spec: str | Sequence[int | str]) -> list[int | str]:
     for t in raw:
         if t == "...":
             t = "*"
-        if isinstance(t, int) and not isinstance(t, bool):
-            out.append(t)
+        if isinstance(t, numbers.Integral) and not isinstance(t, bool):  # numpy integers too
+            out.append(int(t))
         elif isinstance(t, str) and t.lstrip("-").isdigit():
             out.append(int(t))
         elif isinstance(t, str) and (t in ("*", "_") or _NAME.match(t) or not isinstance(spec, str)):

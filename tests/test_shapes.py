@@ -29,6 +29,7 @@ from prt_torch.shapes import check_shape
     ((2, 6, 9, 3), "B ... 3", {"B": 2}),
     ((), "", {}),
     ((5, 3), ("V", -1), {"V": 5}),
+    ((5, 3), (np.int64(5), np.int32(3)), {}),
 ])
 def test_matching_shapes_return_the_symbols(make, shape, spec, dims) -> None:
     assert check_shape(make(shape), spec, name="x") == dims
