@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from prt_torch.errors import DamagedArtifact, PrtError, StaleArtifact
+from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
@@ -90,7 +91,8 @@ class CachedSequence:
 def check_positions(positions: np.ndarray, n_vertices: int, what: str) -> np.ndarray:
     """``positions`` as float32 ``(T, n_vertices, 3)`` with T >= 1 and finite values, else a one-line PrtError."""
     p = np.asarray(positions)
-    if p.ndim != 3 or p.shape[-1] != 3 or p.shape[0] < 1:
+    check_shape(p, "T V 3", name=f"{what}: positions")
+    if p.shape[0] < 1:
         raise PrtError(f"{what}: positions of shape {p.shape}, expected (frames, {n_vertices}, 3)")
     if p.shape[1] != n_vertices:
         raise PrtError(f"{what}: {p.shape[1]} vertices per frame, the subject has {n_vertices} (a cache of "

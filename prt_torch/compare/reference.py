@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError, check
+from prt_torch.shapes import check_shape
 
 
 @dataclass
@@ -115,7 +116,7 @@ def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndar
     positions = np.asarray(positions, dtype=np.float64)
     frames = np.asarray(frames, dtype=np.float64)
     v = positions.shape[0]
-    check(frames.shape == (v, 3, 3), f"reference: frames must be ({v}, 3, 3), got {frames.shape}")
+    check_shape(frames, (v, 3, 3), name="reference: frames")
     check(n_rays >= 1, f"reference: need >= 1 ray per vertex, got {n_rays}")
     if not (np.isfinite(positions).all() and np.isfinite(frames).all()):
         raise PrtError("reference: positions or frames contain NaN or Inf")

@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 
 def check_edges(edges: np.ndarray, n_vertices: int) -> np.ndarray:
     """Validate ``(E, 4)`` integer edge rows indexing ``n_vertices`` vertices; returns them as intp."""
     e = np.asarray(edges)
-    check(e.ndim == 2 and e.shape[1] == 4, f"dihedral edges must have shape (E, 4), got {e.shape}")
+    check_shape(e, "E 4", name="dihedral edges")
     check(np.issubdtype(e.dtype, np.integer), f"dihedral edges must be integers, got {e.dtype}")
     if e.size:
         check(int(e.min()) >= 0 and int(e.max()) < n_vertices,
@@ -50,8 +51,7 @@ class DihedralSoA:
         p = np.asarray(positions_soa)
         p = np.ascontiguousarray(p, dtype=np.float64 if p.dtype == np.float64 else np.float32)  # float64 stays
         v, n = self.n_vertices, self.n_edges
-        if p.ndim != 3 or p.shape[1:] != (3, v):
-            raise PrtError(f"positions must be (B, 3, {v}), got {p.shape}")
+        check_shape(p, ("B", 3, v), name="positions")
         out = np.empty((p.shape[0], n), p.dtype)
         for bi in range(p.shape[0]):
             g = [p[bi, c].take(self.corners).reshape(4, n) for c in range(3)]  # x, y, z of the 4 corners

@@ -23,6 +23,7 @@ import numpy as np
 
 from prt_torch.errors import ArtifactError, check
 from prt_torch.rundir import file_sha256
+from prt_torch.shapes import check_shape
 
 #: the learned arrays a transfer graph may carry, in output order
 ARRAYS: tuple[str, ...] = ("transfer", "subsurface")
@@ -51,8 +52,8 @@ def light_dot(t: Any, light_sh: Any) -> np.ndarray:
     over their first ``min(C, C')`` coefficients (numpy; the graph's ``radiance`` output)."""
     t = np.asarray(t, dtype=np.float32)
     light_sh = np.asarray(light_sh, dtype=np.float32)
-    check(t.ndim == 3 and light_sh.ndim == 2 and light_sh.shape[1] == 3,
-          f"transfer shading: expected t (B, V, C) and lighting (C, 3), got {t.shape} and {light_sh.shape}")
+    check_shape(t, "B V C", name="transfer shading: t")
+    check_shape(light_sh, "C_light 3", name="transfer shading: lighting")
     c = min(t.shape[2], light_sh.shape[0])
     return np.matmul(t[..., :c], light_sh[:c])
 

@@ -17,7 +17,8 @@ from prt_torch.shapes import check_shape
 def check_parents(parents: np.ndarray) -> np.ndarray:
     """Validate ``parents (J,)``: integers, ``-1`` for roots, ``parents[j] < j``; returns it as int64."""
     parents = np.asarray(parents)
-    check(parents.ndim == 1 and parents.size > 0, f"parents must be a non-empty (J,) array, got shape {parents.shape}")
+    check_shape(parents, "J", name="parents")
+    check(parents.size > 0, f"parents must be a non-empty (J,) array, got shape {parents.shape}")
     check(np.issubdtype(parents.dtype, np.integer), f"parents must be integers, got {parents.dtype}")
     parents = parents.astype(np.int64)
     idx = np.arange(parents.size)

@@ -44,6 +44,7 @@ from prt_torch.brdf.analytic import BRDF, BlinnPhong, CookTorrance, Lambert, Pho
 from prt_torch.brdf.factor import hemisphere_rule
 from prt_torch.errors import PrtError, check
 from prt_torch.sg.algebra import sg_product
+from prt_torch.shapes import check_shape
 
 #: view elevations (degrees from the normal) at which :func:`fit_brdf_sg` reports the error
 ERROR_VIEW_DEGREES: tuple[float, ...] = (0.0, 30.0, 60.0, 75.0)
@@ -246,8 +247,8 @@ class SGBRDF:
         """
         n = torch.as_tensor(normal)
         v = torch.as_tensor(view, dtype=n.dtype, device=n.device)
-        check(n.shape[-1:] == (3,) and v.shape[-1:] == (3,), f"view_lobes needs (..., 3) normals and views, got "
-              f"{tuple(n.shape)} and {tuple(v.shape)}")
+        check_shape(n, "... 3", name="view_lobes normals")
+        check_shape(v, "... 3", name="view_lobes views")
         if not bool(torch.isfinite(n).all()) or not bool(torch.isfinite(v).all()):
             raise PrtError("view_lobes normals or views contain NaN or Inf")
         n, v = torch.broadcast_tensors(n, v)

@@ -210,8 +210,7 @@ def zh_project(
     else:
         t, wt = x, w
     h = np.asarray(fn_of_cos(t), dtype=np.float64)
-    if h.shape != t.shape:
-        raise PrtError(f"fn_of_cos must map (N,) cosines to (N,) values, got shape {h.shape} for N={t.shape[0]}")
+    check_shape(h, t.shape, name="fn_of_cos values (one per cosine)")
     if not np.isfinite(h).all():
         raise PrtError("fn_of_cos returned NaN or Inf")
     p = np.polynomial.legendre.legvander(t, order - 1)  # (N, n): P_l(t)

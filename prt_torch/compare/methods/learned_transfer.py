@@ -31,6 +31,7 @@ import numpy as np
 from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
 from prt_torch.errors import DamagedArtifact, check
 from prt_torch.export.transfer_shading import ARRAYS, light_dot, light_input, transfer_shading
+from prt_torch.shapes import check_shape
 
 ARRAY = "transfer"
 SSS = "subsurface"
@@ -43,8 +44,8 @@ def transfer_radiance(t: np.ndarray, light_sh: np.ndarray, albedo: dict[str, np.
     coloured by :func:`prt_torch.export.transfer_shading.transfer_shading`; float32."""
     t = np.asarray(t, dtype=np.float32)
     light_sh = np.asarray(light_sh, dtype=np.float32)
-    check(t.ndim == 3 and light_sh.ndim == 2 and light_sh.shape[1] == 3,
-          f"transfer_radiance: expected t (B, V, C) and lighting (C, 3), got {t.shape} and {light_sh.shape}")
+    check_shape(t, "B V C", name="transfer_radiance: t")
+    check_shape(light_sh, "C_light 3", name="transfer_radiance: lighting")
     check(t_sss is None or np.shape(t_sss) == t.shape,
           f"transfer_radiance: subsurface transfer {np.shape(t_sss)} != transfer {t.shape}")
     return transfer_shading(light_dot(t, light_sh), albedo, None if t_sss is None else light_dot(t_sss, light_sh))
