@@ -45,6 +45,7 @@ import numpy as np
 
 from prt_torch.errors import check
 from prt_torch.metrics import evenly_spaced_indices, psnr_from_mse
+from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
     import torch
@@ -134,7 +135,7 @@ def unshadowed_visibility(order: int, below_horizon: str | Mapping[str, Any] | N
 def orthonormal_frames(frames: np.ndarray) -> np.ndarray:
     """``(..., 3, 3)`` -> float64 nearest rotations (polar factor ``U V^T`` of the SVD; det +1)."""
     f = np.asarray(frames, dtype=np.float64)
-    check(f.ndim >= 2 and f.shape[-2:] == (3, 3), f"frames: expected (..., 3, 3), got {f.shape}")
+    check_shape(f, "... 3 3", name="frames")
     check(bool(np.isfinite(f).all()), "frames contain NaN or Inf")
     u, _, vt = np.linalg.svd(f)
     r = u @ vt
@@ -232,7 +233,7 @@ class ShippingShader:
 
         frames = np.asarray(frames)
         positions = np.asarray(positions, dtype=np.float64)
-        check(frames.ndim == 4 and frames.shape[2:] == (3, 3), f"frames: expected (F, V, 3, 3), got {frames.shape}")
+        check_shape(frames, "F V 3 3", name="frames")
         f, v = frames.shape[:2]
         check(positions.shape == (f, v, 3), f"positions: expected {(f, v, 3)}, got {positions.shape}")
         rot = orthonormal_frames(frames)  # (f, V, 3, 3) float64

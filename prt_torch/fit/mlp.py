@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 DT = torch.float64
 
@@ -228,7 +229,7 @@ class MLPObjective:
               f"clusters ({g})")
         check(sample_weight.shape == (s, f) and alpha.shape == (s, g), "mlp fit: bad sample_weight/alpha shapes")
         im = torch.ones(g, d, dtype=DT, device=dev) if input_mask is None else input_mask.to(dev, DT)
-        check(im.shape == (g, d), f"mlp fit: input_mask must be ({g}, {d}), got {tuple(im.shape)}")
+        check_shape(im, (g, d), name="mlp fit: input_mask")
         om = out_mask.to(dev, DT)
         for name, m in (("neuron_mask", neuron_mask), ("out_mask", om), ("input_mask", im)):
             check(bool(((m == 0) | (m == 1)).all()), f"mlp fit: {name} must be 0/1")
@@ -365,7 +366,7 @@ def init_params(x: torch.Tensor, z: torch.Tensor, out_mask: torch.Tensor, sample
     check(sample_weight.shape == (s, f) and alpha.shape == (s, g), "mlp fit: bad sample_weight/alpha shapes")
     nm = neuron_mask.to(dev, DT)
     im = torch.ones(g, d, dtype=DT, device=dev) if input_mask is None else input_mask.to(dev, DT)
-    check(im.shape == (g, d), f"mlp fit: input_mask must be ({g}, {d}), got {tuple(im.shape)}")
+    check_shape(im, (g, d), name="mlp fit: input_mask")
     dm = nm.unsqueeze(-1) * im[None, :, None, :]  # (S, G, N, d) hidden-weight mask
     om = out_mask.to(dev, DT)
     w = sample_weight.to(dev, DT)
