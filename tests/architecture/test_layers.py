@@ -68,28 +68,18 @@ def _imports(tree: ast.AST, module: str) -> list[tuple[str, int, bool]]:
     """``(imported module, line, inside a function)`` for every prt_torch import outside TYPE_CHECKING."""
     found: list[tuple[str, int, bool]] = []
     pkg_parts = module.split(".")
-
-    def visit(node: ast.AST, in_func: bool) -> None:
-        for child in ast.iter_child_nodes(node):
-            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
-                for c in child.orelse:
-                    visit(c, in_func)
-                continue
-            func = in_func or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
-            if isinstance(child, ast.Import):
-                found.extend((a.name, child.lineno, in_func) for a in child.names if a.name.startswith("prt_torch"))
-            elif isinstance(child, ast.ImportFrom):
-                if child.level:
-                    base = ".".join(pkg_parts[: len(pkg_parts) - child.level + 1])
-                    mod = f"{base}.{child.module}" if child.module else base
-                else:
-                    mod = child.module or ""
-                if mod.startswith("prt_torch"):
-                    names = [f"{mod}.{a.name}" if mod == "prt_torch" else mod for a in child.names]
-                    found.extend((n, child.lineno, in_func) for n in names)
-            visit(child, func)
-
-    visit(tree, False)
+    for node, in_func in _import_nodes(tree):
+        if isinstance(node, ast.Import):
+            found.extend((a.name, node.lineno, in_func) for a in node.names if a.name.startswith("prt_torch"))
+            continue
+        if node.level:
+            base = ".".join(pkg_parts[: len(pkg_parts) - node.level + 1])
+            mod = f"{base}.{node.module}" if node.module else base
+        else:
+            mod = node.module or ""
+        if mod.startswith("prt_torch"):
+            names = [f"{mod}.{a.name}" if mod == "prt_torch" else mod for a in node.names]
+            found.extend((n, node.lineno, in_func) for n in names)
     return found
 
 
