@@ -13,17 +13,12 @@ import pytest
 
 from prt_torch.errors import ArtifactError, DamagedArtifact, MissingArtifact, PrtError, StaleArtifact
 from prt_torch.rundir import RunDir
-from tests.export.pipeline import build_tiny_run
+from tests.export.pipeline import build_tiny_run, copy_run
 
 
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return build_tiny_run(tmp_path_factory.getbasetemp())
-
-
-def _copy(src: Path, dst: Path) -> Path:
-    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("*.mp4", "*.png", "report", "compare"))
-    return dst
 
 
 def test_subclasses_of_prt_error() -> None:
@@ -122,7 +117,7 @@ def test_model_payloads(tmp_path: Path) -> None:
 def test_exported_run_missing_stale_damaged(tiny_run: Path, tmp_path: Path) -> None:
     from prt_torch.player.bundle import RunBundle
 
-    run = RunDir(_copy(tiny_run, tmp_path / "run"))
+    run = RunDir(copy_run(tiny_run, tmp_path / "run"))
     meta = run.export_meta()
     # damaged: a graph that is not the file export.json records
     graph = run.graph_path("visibility")
@@ -155,7 +150,7 @@ def test_exported_run_missing_stale_damaged(tiny_run: Path, tmp_path: Path) -> N
 def test_damaged_store_chunk_checksum(tiny_run: Path, tmp_path: Path) -> None:
     from prt_torch.bake.store import BakedDataset
 
-    run = RunDir(_copy(tiny_run, tmp_path / "run"))
+    run = RunDir(copy_run(tiny_run, tmp_path / "run"))
     chunk = sorted(p for p in (run.dataset_path / "visibility").rglob("*") if p.is_file() and p.name != "zarr.json")[0]
     data = bytearray(chunk.read_bytes())
     data[len(data) // 2] ^= 0xFF

@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 from prt_torch.errors import PrtError
 from prt_torch.io import atomic_path, host_tag, parse_temporary
 from prt_torch.rundir import RunDir
-from tests.export.pipeline import TINY_CONFIG, build_tiny_run
+from tests.export.pipeline import TINY_CONFIG, build_tiny_run, copy_run
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -51,11 +51,6 @@ sys.exit(main(sys.argv[3:]))
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return build_tiny_run(tmp_path_factory.getbasetemp())
-
-
-def _copy(src: Path, dst: Path) -> Path:
-    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("*.mp4", "*.png", "report", "compare"))
-    return dst
 
 
 def _run_all(jobs: list[tuple[int, Path, list[str]]], parallel: int = 2) -> dict[int, tuple[int, str, list[str]]]:
@@ -121,7 +116,7 @@ def test_kill_train_at_every_write(tiny_run: Path, tmp_path: Path, capsys: pytes
     train_cfg = {**TINY_CONFIG["train"], "max_iter": 25}
 
     def job(k: int) -> tuple[int, Path, list[str]]:
-        run = _copy(tiny_run, tmp_path / f"run{k}")
+        run = copy_run(tiny_run, tmp_path / f"run{k}")
         cfg = tmp_path / f"tiny{k}.yaml"
         cfg.write_text(yaml.safe_dump({**TINY_CONFIG, "train": train_cfg, "run_dir": str(run)}))
         return k, tmp_path, ["train", str(cfg)]
@@ -185,7 +180,7 @@ def test_kill_export_at_every_write(tiny_run: Path, tmp_path: Path, capsys: pyte
     args = ["--force", "--brdfs", "lambert", "--terms", "4"]
 
     def job(k: int) -> tuple[int, Path, list[str]]:
-        run = _copy(tiny_run, tmp_path / f"run{k}")
+        run = copy_run(tiny_run, tmp_path / f"run{k}")
         return k, tmp_path, ["export", str(run), *args]
 
     # the lock holder's file, stages.json (key dropped), frames, the RPO cache entry (each job starts with an empty
@@ -234,8 +229,8 @@ def test_kill_export_at_every_write(tiny_run: Path, tmp_path: Path, capsys: pyte
 def test_swapped_graph_of_another_model_is_detected(tiny_run: Path, tmp_path: Path) -> None:
     from prt_torch.export.run import export_run
 
-    run = _copy(tiny_run, tmp_path / "run")
-    other = _copy(tiny_run, tmp_path / "other")
+    run = copy_run(tiny_run, tmp_path / "run")
+    other = copy_run(tiny_run, tmp_path / "other")
     export_run(other, kind="linear", brdfs=("lambert",), force=True)
     assert _bundle_state(run) == RunDir(tiny_run).export_meta()
     for graph in ("visibility", "fused"):
@@ -251,7 +246,7 @@ def test_swapped_graph_of_another_model_is_detected(tiny_run: Path, tmp_path: Pa
 def test_stale_temporaries_removed_by_rule_and_never_read(tiny_run: Path, tmp_path: Path) -> None:
     """Temporaries of the stage's targets and of dead writers go at ``begin``; a live writer's stay; readers
     ignore all of them."""
-    run = RunDir(_copy(tiny_run, tmp_path / "run"))
+    run = RunDir(copy_run(tiny_run, tmp_path / "run"))
     run.report_dir.mkdir(exist_ok=True)
     dead = 2**22 + 12345  # above the default pid_max: no such process
     host = host_tag()
@@ -314,7 +309,7 @@ def _damage(text: str, keys: tuple[str, ...]) -> st.SearchStrategy[bytes]:
 
 @pytest.fixture(scope="module")
 def damage_run(tiny_run: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _copy(tiny_run, tmp_path_factory.mktemp("damage") / "run")
+    return copy_run(tiny_run, tmp_path_factory.mktemp("damage") / "run")
 
 
 def _check_damage(run: RunDir, path: Path, original: bytes, bad: bytes, readers: list) -> None:

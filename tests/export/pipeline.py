@@ -37,3 +37,11 @@ def build_tiny_run(base: Path) -> Path:
     assert rc == 0, "prt demo failed on the tiny config"
     marker.write_text(f"{time.perf_counter() - t0:.1f}\n")
     return run_dir
+
+
+def copy_run(src: Path, dst: Path) -> Path:
+    """A working copy of the run ``src`` at ``dst`` without its videos, images, report and compare folders."""
+    import shutil
+
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("*.mp4", "*.png", "report", "compare"))
+    return dst
