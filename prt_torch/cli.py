@@ -25,7 +25,7 @@ from typing import Any, NoReturn, TextIO
 COMMANDS: dict[str, str] = {
     "demo": "prt_torch.commands.demo",
     "light": "prt_torch.commands.light",
-    "simulate": "prt_torch.commands.simulate",
+    "simulate": "prt_torch.cloth.command",
     "bake": "prt_torch.commands.bake",
     "train": "prt_torch.commands.train",
     "eval": "prt_torch.commands.eval",
@@ -34,7 +34,7 @@ COMMANDS: dict[str, str] = {
     "compare": "prt_torch.commands.compare",
     "info": "prt_torch.commands.info",
     "bench": "prt_torch.commands.bench",
-    "heightfield": "prt_torch.commands.heightfield",
+    "heightfield": "prt_torch.heightfield.command",
     "web": "prt_torch.commands.web",
 }
 

@@ -72,12 +72,12 @@ _EXPORT_JSON = "export.json"
 _FRAMES = "frames.npz"
 _BLOCKERS = "blockers.npz"
 _SHEXP_ONNX = "shexp.onnx"
-_TRANSFER_ONNX = "transfer.onnx"  # the learned transfer graph (prt_torch.export.transfer_graph)
+_TRANSFER_ONNX = "transfer.onnx"  # the learned transfer graph (prt_torch.transfer.graph)
 _S001 = "s001.npz"
-_DEFORM = "deform.npz"  # a deformable run's frame operator + cloth edges (prt_torch.export.deformable)
+_DEFORM = "deform.npz"  # a deformable run's frame operator + cloth edges (prt_torch.cloth.export)
 _POSITIONS_ONNX = "positions.onnx"  # a deformable run's positions-in visibility graph
 _POSITIONS_FUSED_ONNX = "positions_fused.onnx"  # a deformable run's positions-in radiance graph (cluster order)
-_LOCAL_ONNX = "local.onnx"  # a deformable run's shipped local visibility network (prt_torch.export.local_graph)
+_LOCAL_ONNX = "local.onnx"  # a deformable run's shipped local visibility network (prt_torch.local.graph)
 _LOCAL_DATA = "local.npz"  # its neighbour indices
 _RPO = "rpo"
 _MATERIAL_RPO = "material"  # rpo/material-<key>.npz: the character material's RPO (player cache)
@@ -247,7 +247,7 @@ class RunDir:
 
     def local_model_path(self, kind: str) -> Path:
         """``models/local_<kind>.pt``: a local visibility model (``prt train`` with ``train.local``,
-        :mod:`prt_torch.fit.local`)."""
+        :mod:`prt_torch.local.fit`)."""
         check(kind.isidentifier(), f"bad local model kind {kind!r}")
         return self.models_dir / f"local_{kind}.pt"
 
@@ -356,7 +356,7 @@ class RunDir:
 
     @property
     def shexp_path(self) -> Path:
-        """``shexp.onnx``: the SHEXP sphere-blocker visibility graph (:mod:`prt_torch.export.shexp_graph`)."""
+        """``shexp.onnx``: the SHEXP sphere-blocker visibility graph (:mod:`prt_torch.shexp.graph`)."""
         return self.path / _SHEXP_ONNX
 
     @property
@@ -367,12 +367,12 @@ class RunDir:
     @property
     def local_graph_path(self) -> Path:
         """``local.onnx``: the shipped local visibility network (``train.local.default``,
-        :mod:`prt_torch.export.local_graph`)."""
+        :mod:`prt_torch.local.graph`)."""
         return self.path / _LOCAL_ONNX
 
     @property
     def local_data_path(self) -> Path:
-        """``local.npz``: the shipped local model's neighbour indices (:mod:`prt_torch.export.local_graph`)."""
+        """``local.npz``: the shipped local model's neighbour indices (:mod:`prt_torch.local.graph`)."""
         return self.path / _LOCAL_DATA
 
     @property
@@ -388,7 +388,7 @@ class RunDir:
     @property
     def transfer_graph_path(self) -> Path:
         """``transfer.onnx``: the learned transfer graph ``(pose, light) -> (transfer, L . t [, subsurface, ...])``
-        (:mod:`prt_torch.export.transfer_graph`, ``prt export`` of a run with ``transfer.json``)."""
+        (:mod:`prt_torch.transfer.graph`, ``prt export`` of a run with ``transfer.json``)."""
         return self.path / _TRANSFER_ONNX
 
     def graph_path(self, graph: str) -> Path:

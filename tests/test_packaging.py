@@ -60,7 +60,7 @@ _MATERIAL_RPO = ("the character material's Cook-Torrance RPO is built once per r
                  "`prt web`) and cached; without scikit-learn (player-only install) that is a one-line error")
 _SG_LIGHT = "`prt light --sg` needs the sg extra (healpy, torch) and says so in one line without it"
 _MODELS = ("prt_torch.models exports its torch classes lazily (module __getattr__); the seed-001 player imports only "
-           "its numpy submodule prt_torch.models.posespace")
+           "its numpy submodule prt_torch.s001.posespace")
 
 #: entry point -> {"module: top" (a lazy import) or "module -> imported module" (a lazy edge): reason}
 UNUSED_LAZY: dict[str, dict[str, str]] = {
@@ -83,22 +83,22 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
         "prt_torch.commands.light -> prt_torch.sg.lighting": _SG_LIGHT,
         "prt_torch.commands.light: healpy": _SG_LIGHT,
         "prt_torch.commands.light: torch": _SG_LIGHT,
-        "prt_torch.commands.play -> prt_torch.player.sg_renderer": "`prt play --renderer sg` (SG lighting + voxel "
+        "prt_torch.commands.play -> prt_torch.vct.player": "`prt play --renderer sg` (SG lighting + voxel "
                                                                    "cone tracing) needs torch and healpy",
         "prt_torch.export -> prt_torch.export.run": "the deformable player reads the deform data (export.deform_data, "
                                                     "numpy); export_run is `prt export`'s",
-        "prt_torch.player.deformable -> prt_torch.cloth.cache": "`prt play --sequence` reads the run's vertex cache "
+        "prt_torch.cloth.player -> prt_torch.cloth.cache": "`prt play --sequence` reads the run's vertex cache "
                                                                 "(zarr, extra bake); positions arrays play without it",
     },
     "sg": {
         "prt_torch.brdf.factor: sklearn": "SG BRDF fits use hemisphere_rule only, not the RPO factorisation (SVD)",
     },
     "train": {
-        "prt_torch.bake.deformable -> prt_torch.cloth.simulate": "prt train reads a cloth run's dataset; simulating "
+        "prt_torch.cloth.bake -> prt_torch.cloth.simulate": "prt train reads a cloth run's dataset; simulating "
                                                                  "(mujoco) is prt bake's",
     },
     "export": {
-        "prt_torch.bake.deformable -> prt_torch.cloth.simulate": "prt export of a cloth run reads its subject and "
+        "prt_torch.cloth.bake -> prt_torch.cloth.simulate": "prt export of a cloth run reads its subject and "
                                                                  "dataset (export.deformable); simulating (mujoco) "
                                                                  "is prt bake's",
     },

@@ -9,7 +9,7 @@ from prt_torch.conventions import BelowHorizon
 
 
 class SubsurfaceConfig(BaseModel):
-    """Dipole subsurface material (Jensen et al. 2001; :mod:`prt_torch.bake.subsurface`): coefficients in 1/mm,
+    """Dipole subsurface material (Jensen et al. 2001; :mod:`prt_torch.transfer.subsurface`): coefficients in 1/mm,
     ``scale`` mm per world unit; defaults: Jensen's skin1, green channel, a character in metres."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -64,7 +64,7 @@ class BakeConfig(BaseModel):
     vertex_chunk_rays: int = Field(default=1 << 20, ge=1024, le=L.MAX_CHUNK_RAYS)
     #: sphere blockers fitted on the rest mesh, shipped by ``prt export`` (SHEXP, seed 003 sec. 7; not a baked number)
     blockers: int = Field(default=48, ge=1, le=1024)
-    #: also bake per-vertex transfer matrices (seed 001; :mod:`prt_torch.bake.transfer_matrix`), local frame rows
+    #: also bake per-vertex transfer matrices (seed 001; :mod:`prt_torch.s001.bake`), local frame rows
     transfer_matrix: bool = False
     matrix_order: int = Field(default=4, ge=1, le=8)  # SH order of the transfer matrices (C = order^2)
     matrix_bounces: int = Field(default=1, ge=0, le=2)  # diffuse interreflection bounces in the matrices

@@ -47,7 +47,7 @@ class BakePlan:
         skin: ``(F, J, 4, 4)`` float64 skin matrices (``world @ inverse_bind``); a deformable plan's are the
             identity ``(F, 1, 4, 4)`` (its single root joint).
         positions: ``(F, V, 3)`` float32 vertex-cache positions of a deformable subject (cloth, issue 11: the
-            bake traces these, never skinning; :mod:`prt_torch.bake.deformable`), None for a skinned character.
+            bake traces these, never skinning; :mod:`prt_torch.cloth.bake`), None for a skinned character.
     """
 
     character: Character
@@ -130,9 +130,9 @@ def make_deformable_plan(cfg: RunConfig, subject: Any | None = None, cache: Any 
     """The plan of a cloth run (``cloth:`` section) from its vertex cache: one dataset clip per cached sequence
     (``ClothSubject.sequences("train")`` then ``("heldout")``, splits from the cloth config), ``frame_index`` the
     frame within the sequence, ``pose`` the deformable input features, ``skin`` the identity, ``positions`` the
-    cached positions (:func:`prt_torch.bake.deformable.sequence_frames`). A missing cache or sequence, NaN
+    cached positions (:func:`prt_torch.cloth.bake.sequence_frames`). A missing cache or sequence, NaN
     positions or a wrong vertex count is a one-line :class:`PrtError`."""
-    from prt_torch.bake.deformable import load_subject, open_cache, sequence_frames
+    from prt_torch.cloth.bake import load_subject, open_cache, sequence_frames
 
     subject = load_subject(cfg) if subject is None else subject
     cache = open_cache(cfg) if cache is None else cache

@@ -35,8 +35,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.bake.deformable import clusters as deformable_clusters
-from prt_torch.bake.deformable import ensure_simulated, frame_operator, is_deformable, posed_frames
+from prt_torch.cloth.bake import clusters as deformable_clusters
+from prt_torch.cloth.bake import ensure_simulated, frame_operator, is_deformable, posed_frames
 from prt_torch.bake.embree import ray_offset, require_embreex
 from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
@@ -55,7 +55,7 @@ from prt_torch.bake.store import (
     write_arrays,
 )
 from prt_torch.bake.trace import RaySet, trace_frame
-from prt_torch.bake.transfer_matrix import frame_results
+from prt_torch.s001.bake import frame_results
 from prt_torch.errors import DamagedArtifact, PrtError
 from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.rundir import RunDir
@@ -69,7 +69,7 @@ if TYPE_CHECKING:
 class BlockTask:
     """One task: frames ``[f0, f1)`` of the store at ``dataset`` (absolute path) with their
     ``skin (f1 - f0, J, 4, 4)`` float64 matrices, or a deformable subject's vertex-cache
-    ``positions (f1 - f0, V, 3)`` float32 (then traced as they are, frames by :mod:`prt_torch.bake.deformable`)."""
+    ``positions (f1 - f0, V, 3)`` float32 (then traced as they are, frames by :mod:`prt_torch.cloth.bake`)."""
 
     dataset: str
     f0: int
@@ -252,7 +252,7 @@ def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any
         "conventions": conventions(b.below_horizon),
         "versions": library_versions(),
         "config": cfg.model_dump(mode="json"),
-        # positions from the vertex cache, FrameOperator frames, k-means clusters (prt_torch.bake.deformable)
+        # positions from the vertex cache, FrameOperator frames, k-means clusters (prt_torch.cloth.bake)
         "deformable": plan.deformable,
     }
 

@@ -94,7 +94,7 @@ def _parse_sizes(text: str, name: str, hi: int) -> list[int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from prt_torch.player.deformable import is_deformable_export
+    from prt_torch.cloth.player import is_deformable_export
 
     if is_deformable_export(args.run):  # a cloth run: positions -> frames + features + visibility -> shading
         from prt_torch.commands.bench_play_deformable import run as run_deformable

@@ -2,7 +2,7 @@
 
 ``prt bench play`` hands a run whose export has a ``deformable`` entry to :func:`run` here (same arguments). On the
 run's held-out frames (the dataset's ``positions``; the cached sequences hold the same), everything timed interleaved
-frame by frame in ``--repeats`` blocks, medians reported (:class:`prt_torch.player.deformable.DeformablePlayer`):
+frame by frame in ``--repeats`` blocks, medians reported (:class:`prt_torch.cloth.player.DeformablePlayer`):
 
 * ``frames``: numpy :meth:`FrameOperator.frames_soa` + view directions (the player's "pose" step);
 * ``features_numpy``: the player's numpy dihedral angles (:class:`prt_torch.deform.dihedral_soa.DihedralSoA`);
@@ -45,8 +45,8 @@ def _positions_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, 
     """The run's positions-in graph exported at each precision into ``tmp`` (torch): ``{precision: OrtGraph}``."""
     import torch
 
-    from prt_torch.export.deform_data import DeformData
-    from prt_torch.export.deformable import graph_input_names, positions_graph_module
+    from prt_torch.cloth.deform_data import DeformData
+    from prt_torch.cloth.export import graph_input_names, positions_graph_module
     from prt_torch.export.graphs import VisibilityGraph
     from prt_torch.export.onnx_file import export_onnx
     from prt_torch.export.run import lowering, per_cluster
@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.errors import check
     from prt_torch.export.graphs import PRECISIONS
     from prt_torch.export.onnx_file import initializer_bytes, weight_macs
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
     from prt_torch.rundir import RunDir
 
     limits.check_int(args.frames, "--frames", 5, limits.MAX_FRAMES)
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     local_player = make("split", local=True) if has_local else None
     if local_player is not None:  # the shipped local network: frames, offsets (numba), local.onnx
         variants["frame_split_local"] = local_player
-        from prt_torch.deform.local_soa import LocalOffsetsSoA
+        from prt_torch.local.soa import LocalOffsetsSoA
 
         numpy_offsets = LocalOffsetsSoA(local_player.local_offsets.neighbours, engine="numpy")
     try:

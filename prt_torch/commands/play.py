@@ -13,7 +13,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", help="exported run directory (runs/NAME)")
     parser.add_argument("--clip", default=None, help="clip name of the character (e.g. walk)")
     parser.add_argument("--sequence", default=None, help="a deformable (cloth) run: the sequence of its vertex cache "
-                                                         "to play (prt_torch.player.deformable)")
+                                                         "to play (prt_torch.cloth.player)")
     parser.add_argument("--motion", default=None, help="a motion file (.bvh, or a humanoid .glb/.gltf) retargeted "
                                                        "onto the run's character, instead of --clip")
     parser.add_argument("--motion-fps", type=float, default=None,
@@ -112,17 +112,17 @@ def run(args: argparse.Namespace) -> int:
     run = RunDir(args.run)
     timings = args.timings or (run.timings_path(args.out) if args.out else run.play_timings)
     if args.renderer == "sg":
-        from prt_torch.player.sg_renderer import SGPlayer
+        from prt_torch.vct.player import SGPlayer
 
         limits.check_int(args.vct_resolution, "--vct-resolution", 16, 512)
         player = SGPlayer(args.run, env=args.env, brdf=args.brdf, threads=args.threads, window_size=(h, w),
                           resolution=args.vct_resolution, device=args.device)
     elif args.renderer in ("s001", "posespace"):
-        from prt_torch.player.s001_renderer import S001RunPlayer
+        from prt_torch.s001.renderer import S001RunPlayer
 
         player = S001RunPlayer(args.run, env=args.env, brdf=args.brdf, scheme=args.renderer, window_size=(h, w))
     elif args.renderer == "transfer":
-        from prt_torch.player.transfer import TransferPlayer
+        from prt_torch.transfer.player import TransferPlayer
 
         player = TransferPlayer(args.run, env=args.env, brdf=args.brdf, threads=args.threads, window_size=(h, w),
                                 device=args.device)
@@ -157,13 +157,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
     """``--sequence NAME``: a cached sequence of a deformable run
-    (:class:`~prt_torch.player.deformable.DeformablePlayer`, graph ``pipeline`` (default), ``split`` or
+    (:class:`~prt_torch.cloth.player.DeformablePlayer`, graph ``pipeline`` (default), ``split`` or
     ``overlap``)."""
     import numpy as np
     from rich.console import Console
 
     from prt_torch.errors import PrtError
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
     from prt_torch.player.render import has_display
     from prt_torch.rundir import RunDir
 

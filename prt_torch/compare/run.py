@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch import metrics as M
-from prt_torch.bake.deformable import is_deformable
+from prt_torch.cloth.bake import is_deformable
 from prt_torch.bake.store import recorded_config, recorded_fps
 from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
@@ -101,9 +101,9 @@ def clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> Fr
 
 def deformable_clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> FrameSet:
     """A cached sequence of a deformable (cloth) run, positions, features and frames by the bake's rule
-    (:func:`prt_torch.bake.deformable.sequence_frames`, :func:`~prt_torch.bake.deformable.posed_frames` with the
+    (:func:`prt_torch.cloth.bake.sequence_frames`, :func:`~prt_torch.cloth.bake.posed_frames` with the
     dataset's clusters); ``max_frames``: evenly spaced subset."""
-    from prt_torch.bake.deformable import frame_operator, load_subject, open_cache, posed_frames, sequence_frames
+    from prt_torch.cloth.bake import frame_operator, load_subject, open_cache, posed_frames, sequence_frames
     from prt_torch.config import config_from_dict
 
     ds = ctx.dataset

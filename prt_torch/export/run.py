@@ -171,8 +171,8 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         force: re-export even when the export is up to date (same model file and settings).
         precision: weight precision of the output bases (``"fp32"``, ``"fp16"``, ``"int8"``); models without
             per-cluster bases export in float32.
-        deform: a deformable run's :class:`prt_torch.export.deformable.DeformSpec` (``None``: built from the run
-            when its config has ``cloth:``, :func:`prt_torch.export.deformable.deform_spec`): ships the deform data
+        deform: a deformable run's :class:`prt_torch.cloth.export.DeformSpec` (``None``: built from the run
+            when its config has ``cloth:``, :func:`prt_torch.cloth.export.deform_spec`): ships the deform data
             and the positions-in graph too.
     """
     import torch
@@ -195,19 +195,19 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     mpath = model_path(run, kind)
     model = load_model(run, kind)
     model_hash = file_sha256(mpath)
-    from prt_torch.export.shexp_graph import (  # sphere blockers + SHEXP graph (issue 10)
+    from prt_torch.shexp.graph import (  # sphere blockers + SHEXP graph (issue 10)
         SHEXP_GRAPH_VERSION,
         blocker_count,
         ship_shexp,
     )
 
     n_spheres = blocker_count(run)
-    from prt_torch.export.deformable import DEFORMABLE_VERSION, deform_spec, is_deformable
+    from prt_torch.cloth.export import DEFORMABLE_VERSION, deform_spec, is_deformable
 
     if deform is None and is_deformable(run):
         deform = deform_spec(run)
     deform_files = (run.deform_path, run.positions_graph_path, run.positions_fused_path) if deform is not None else ()
-    from prt_torch.export.local_graph import LOCAL_GRAPH_VERSION, shipped_local_kind
+    from prt_torch.local.graph import LOCAL_GRAPH_VERSION, shipped_local_kind
 
     local_kind = shipped_local_kind(run) if deform is not None else None
     local_files = (run.local_graph_path, run.local_data_path) if local_kind is not None else ()
@@ -307,14 +307,14 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         if console is not None:
             console.print(f"  {path.name}: parity rel. error {p.rel_error:.2e} on {len(pose)} held-out poses")
     shexp = ship_shexp(run, character, order, n_spheres, opset, base_meta)
-    from prt_torch.export.transfer_graph import ship_transfer  # learned transfer (seed 000), issue 12 item 6
+    from prt_torch.transfer.graph import ship_transfer  # learned transfer (seed 000), issue 12 item 6
 
     transfer = ship_transfer(run, order * order, pose, base_meta, opset=opset, exporter=exporter)
     if transfer is not None and console is not None:
         console.print(f"  {run.transfer_graph_path.name}: parity rel. error {transfer['parity']['rel_error']:.2e}")
     deformable = None
     if deform is not None:  # a deformable run: the frame operator + the positions-in graph
-        from prt_torch.export.deformable import ship_deformable
+        from prt_torch.cloth.export import ship_deformable
 
         deformable = ship_deformable(run, deform, vis_graph, held, base_meta, PARITY_RTOL_BY_PRECISION[precision],
                                      opset=opset, exporter=exporter,
@@ -325,7 +325,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
                           f"{deformable['parity']['rel_error']:.2e} (positions -> dihedral angles -> visibility)")
     local = None
     if local_kind is not None:  # the local visibility network the player runs instead of the per-cluster model
-        from prt_torch.export.local_graph import ship_local
+        from prt_torch.local.graph import ship_local
 
         local = ship_local(run, local_kind, held, base_meta, PARITY_RTOL_BY_PRECISION["fp32"], opset=opset,
                            exporter=exporter)
@@ -364,7 +364,7 @@ def _transfer_key(run: RunDir) -> dict[str, Any]:
     """The stage-key part of the learned transfer graph: ``transfer.json``'s sha256 (it records the models')."""
     if not run.transfer_json.is_file():
         return {}
-    from prt_torch.export.transfer_graph import TRANSFER_GRAPH_VERSION
+    from prt_torch.transfer.graph import TRANSFER_GRAPH_VERSION
 
     return {"transfer": [file_sha256(run.transfer_json), TRANSFER_GRAPH_VERSION]}
 

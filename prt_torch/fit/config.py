@@ -13,7 +13,7 @@ KINDS: tuple[str, ...] = ("linear", "quadratic", "mlp")
 
 
 class TransferConfig(BaseModel):
-    """``train.transfer``: learned diffuse transfer (seed 000; :mod:`prt_torch.fit.transfer`). The ``kinds`` are fitted
+    """``train.transfer``: learned diffuse transfer (seed 000; :mod:`prt_torch.transfer.fit`). The ``kinds`` are fitted
     to the baked global-frame ``transfer`` (and ``subsurface`` when baked) vectors with the train section's grids:
     input PCA of the poses (``input_components``, else ``input_variance``), output PCA ``global`` (seed 000 sec. 5:
     one basis over the per-coefficient vertex vectors; Table 1's PCA(8, 22) = 8 inputs, 22 outputs) or per
@@ -40,7 +40,7 @@ class TransferConfig(BaseModel):
 
 
 class S001Config(BaseModel):
-    """``train.s001``: seed 001's compressed transfer matrices (:mod:`prt_torch.fit.s001`). Segments = the skinning
+    """``train.s001``: seed 001's compressed transfer matrices (:mod:`prt_torch.s001.fit`). Segments = the skinning
     clusters; per segment the poses of ``clip`` are grouped by recursive normalized cut into groups of
     ``leaf_size`` (eq. 3 with ``t_scale`` / ``p_scale``); CPCA with ``n_basis`` basis matrices per cluster,
     ``clusters_per_segment`` clusters per segment, ``cpca_iters`` reassignment rounds; 16-bit coefficients.
@@ -56,7 +56,7 @@ class S001Config(BaseModel):
     n_basis: int = Field(default=8, ge=1, le=64)
     # "segment": row-constrained CPCA per segment (clusters_per_segment clusters, cpca_iters rounds; the default:
     # measured 0.12 train error with 76 clusters vs 0.62 with 265 for "revised" on the same small store);
-    # "revised": sec. 4's incremental revised CPCA (prt_torch.reduce.rcpca, per-pose budget m_cpf clusters)
+    # "revised": sec. 4's incremental revised CPCA (prt_torch.s001.rcpca, per-pose budget m_cpf clusters)
     cpca: Literal["revised", "segment"] = "segment"
     m_cpf: int = Field(default=64, ge=1, le=1 << 16)
     clusters_per_segment: int = Field(default=8, ge=1, le=4096)
@@ -68,8 +68,8 @@ class S001Config(BaseModel):
 
 
 class LocalConfig(BaseModel):
-    """``train.local``: local visibility models of a deformable run (:mod:`prt_torch.models.local`, fitted by
-    :mod:`prt_torch.fit.local`): one network shared by every vertex, fed its neighbours' offsets in its own frame.
+    """``train.local``: local visibility models of a deformable run (:mod:`prt_torch.local.models`, fitted by
+    :mod:`prt_torch.local.fit`): one network shared by every vertex, fed its neighbours' offsets in its own frame.
     Neighbours: rings of ``radii`` (world units) x ``angles`` in the rest tangent plane. ``linear``: closed-form
     ridge (``alpha``, relative to the mean squared input) with a per-vertex intercept; ``mlp``: tanh layers of
     ``hidden`` sizes, Adam on ``batch`` random (frame, vertex) samples for ``steps`` steps at ``lr`` (cosine decay),
@@ -159,9 +159,9 @@ class TrainConfig(BaseModel):
     threads: int = Field(default=1, ge=0, le=L.MAX_THREADS)
     dataset: str | None = Field(default=None, min_length=1, max_length=L.MAX_STRING_LENGTH)
     eval_frames: int | None = Field(default=None, ge=2, le=L.MAX_FRAMES)  # cap on frames per split in metrics.json
-    transfer: TransferConfig | None = None  # learned diffuse transfer (seed 000), prt_torch.fit.transfer
-    s001: S001Config | None = None  # seed 001 compressed transfer matrices, prt_torch.fit.s001
-    local: LocalConfig | None = None  # local visibility models of a deformable run, prt_torch.fit.local
+    transfer: TransferConfig | None = None  # learned diffuse transfer (seed 000), prt_torch.transfer.fit
+    s001: S001Config | None = None  # seed 001 compressed transfer matrices, prt_torch.s001.fit
+    local: LocalConfig | None = None  # local visibility models of a deformable run, prt_torch.local.fit
 
     @field_validator("kinds")
     @classmethod

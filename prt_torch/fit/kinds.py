@@ -1,7 +1,7 @@
 """The fitters of every visibility kind on the training split: the input and output reductions
 (:func:`reduce_training` -> :class:`Reduced`), the ridge kinds (linear, quadratic: :func:`fit_ridge_kind`) and the
 MLP (:func:`fit_mlp_kind`), each model selected by blocked cross-validation (:func:`fit_kinds`). The run's training
-stage (:mod:`prt_torch.fit.train`) and the learned transfer (:mod:`prt_torch.fit.transfer`) both use them.
+stage (:mod:`prt_torch.fit.train`) and the learned transfer (:mod:`prt_torch.transfer.fit`) both use them.
 """
 
 from __future__ import annotations

@@ -132,7 +132,7 @@ def train_dataset(dataset: str | Path | BakedDataset, run_dir: str | Path | RunD
 
 
 def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
-    from prt_torch.bake.deformable import is_deformable
+    from prt_torch.cloth.bake import is_deformable
 
     check(cfg.local is None or is_deformable(ds.attrs),
           f"{ds.path}: train.local needs a deformable (cloth) dataset")  # before anything is fitted or written
@@ -167,17 +167,17 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     for name, sp in splits.items():
         metrics.setdefault("pca_floor", {})[name] = vis_rel_err(red.out.expand(red.out.reduce(sp.visibility)),
                                                                sp.visibility)
-    from prt_torch.fit.transfer import train_transfer  # seed 000 learned transfer (train.transfer; else removed)
+    from prt_torch.transfer.fit import train_transfer  # seed 000 learned transfer (train.transfer; else removed)
 
     transfer = train_transfer(ds, run, cfg, progress)
     if transfer is not None:
         metrics["transfer"] = transfer
-    from prt_torch.fit.local import train_local  # local visibility models (train.local; else removed)
+    from prt_torch.local.fit import train_local  # local visibility models (train.local; else removed)
 
     local = train_local(ds, run, cfg, splits, progress)
     if local is not None:
         metrics["local"] = local
-    from prt_torch.fit.s001 import train_s001  # seed 001 compressed transfer matrices (train.s001; else removed)
+    from prt_torch.s001.fit import train_s001  # seed 001 compressed transfer matrices (train.s001; else removed)
 
     s001 = train_s001(ds, run, cfg, progress)
     if s001 is not None:

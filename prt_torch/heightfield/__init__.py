@@ -8,7 +8,7 @@
 * :mod:`~prt_torch.heightfield.visibility`: :class:`HeightFieldVisibility` (the per-frame generator).
 * :mod:`~prt_torch.heightfield.truth`: Embree truth through the bake's :func:`~prt_torch.bake.trace.trace_frame`.
 
-``prt heightfield`` (``prt_torch.commands.heightfield``) reports error, image PSNR and ms per frame vs Embree.
+``prt heightfield`` (``prt_torch.heightfield.command``) reports error, image PSNR and ms per frame vs Embree.
 """
 
 from prt_torch.heightfield.horizon import horizon_angles, max_pyramid, wedge_azimuths

@@ -3,7 +3,7 @@
 ``VisibilityModel`` (pose ``(B, A)`` -> visibility ``(B, V, C)``), ``load_model(run_dir, kind=None)``.
 
 The torch classes are exported lazily (module ``__getattr__``, PEP 562): ``from prt_torch.models import X`` works as
-before, while importing a numpy-only submodule (``prt_torch.models.posespace``, the seed-001 player's) runs this
+before, while importing a numpy-only submodule (``prt_torch.s001.posespace``, the seed-001 player's) runs this
 package without importing torch.
 """
 

@@ -25,18 +25,20 @@ PKG = Path(__file__).resolve().parents[2] / "prt_torch"
 #: modules) rank with ``config``: they are plain pydantic models every stage reads
 RANKS: dict[str, int] = {
     "__init__": 0, "errors": 0, "shapes": 0, "io": 0, "runtime": 0, "rundir": 0, "config": 0, "limits": 0,
-    "kernels": 0, "exact": 0,
+    "kernels": 0, "exact": 0, "plugins": 0,
     "conventions": 0, "progress": 0,
     "sh": 1,
     "light": 2, "brdf": 2,
-    "shade": 3, "metrics": 3, "shexp": 3, "sg": 3,
+    "shade": 3, "metrics": 3, "sg": 3,
     "rig": 4, "deform": 4,
-    "bake": 5, "blockers": 5, "heightfield": 5, "vct": 5, "scene": 5, "cloth": 5,
+    "bake": 5, "blockers": 5, "scene": 5,
     "reduce": 6, "models": 6,
     "fit": 7,
     "export": 8,
     "player": 9,
-    "eval": 10, "compare": 10, "web": 10, "commands": 11, "cli": 11, "__main__": 12,
+    "eval": 10, "compare": 10,
+    **{pkg: 11 for pkg in ("s001", "transfer", "local", "shexp", "vct", "heightfield", "cloth")},
+    "web": 12, "commands": 12, "cli": 12, "__main__": 13,
 }
 
 #: lazy (function-level) imports allowed to point up, for the run-directory owner only

@@ -79,7 +79,7 @@ def _closed_form_irradiance(normals: np.ndarray, light: np.ndarray) -> np.ndarra
 def test_shading_matches_closed_form_irradiance() -> None:
     """``transfer_radiance`` of unoccluded transfer vectors ``int max(n.w, 0)/pi y(w) dw`` (numerical quadrature on
     a dense spherical-Fibonacci set) is ``albedo * E(n) / pi`` of the closed-form irradiance."""
-    from prt_torch.compare.methods.learned_transfer import transfer_radiance
+    from prt_torch.transfer.compare import transfer_radiance
     from prt_torch.sh.basis import sh_basis
 
     rng = np.random.default_rng(1)
@@ -143,7 +143,7 @@ def test_onnxruntime_matches_torch_and_compare(tiny_run: Path) -> None:
 
 def test_unavailable_and_bad_input(tiny_run: Path, tmp_path: Path) -> None:
     from prt_torch.compare.methods import METHODS
-    from prt_torch.compare.methods.learned_transfer import transfer_radiance
+    from prt_torch.transfer.compare import transfer_radiance
 
     bare = SimpleNamespace(run=RunDir(tmp_path))  # no transfer.json: not available
     assert not METHODS["learned_transfer"].available(bare)
@@ -261,7 +261,7 @@ def test_player_transfer_radiance_is_numpy_dot_of_torch_transfer(tiny_run: Path,
 
     from prt_torch.light.rotation import rotate_lighting
     from prt_torch.models import load_model_file
-    from prt_torch.player.transfer import TransferPlayer
+    from prt_torch.transfer.player import TransferPlayer
 
     run = RunDir(tiny_run)
     p = TransferPlayer(tiny_run, threads=1, brdf="lambert")
@@ -299,8 +299,8 @@ def test_play_transfer_command_without_torch(tiny_run: Path, exported: dict[str,
 
 
 def test_transfer_bad_input_is_one_line(tiny_run: Path, exported: dict[str, Any]) -> None:
-    from prt_torch.export.transfer_shading import subsurface_tint, transfer_shading
-    from prt_torch.player.transfer import TransferPlayer
+    from prt_torch.transfer.shading import subsurface_tint, transfer_shading
+    from prt_torch.transfer.player import TransferPlayer
 
     cases = [
         (lambda: transfer_shading(np.zeros((2, 3)), {"a": np.ones(3)}), "radiance must be"),

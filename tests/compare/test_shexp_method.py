@@ -43,8 +43,8 @@ def test_registered_and_torch_vs_shipped_onnx(setup) -> None:  # noqa: ANN001
     pytest.importorskip("onnxruntime")
     from prt_torch.blockers import fit_spheres
     from prt_torch.compare.methods import METHODS
-    from prt_torch.compare.methods.shexp import Shexp
-    from prt_torch.export.shexp_graph import export_shexp
+    from prt_torch.shexp.compare import Shexp
+    from prt_torch.shexp.graph import export_shexp
 
     ctx, fs = setup
     assert METHODS["shexp"] is Shexp
@@ -70,7 +70,7 @@ def test_matches_embree_on_the_posed_spheres(setup) -> None:  # noqa: ANN001
     pytest.importorskip("embreex")
     from prt_torch.bake.embree import RayScene
     from prt_torch.blockers import pose_spheres
-    from prt_torch.compare.methods.shexp import Shexp
+    from prt_torch.shexp.compare import Shexp
     from prt_torch.sh.product import sh_product
     from prt_torch.sh.project import project
     from prt_torch.sh.quadrature import sphere_directions
@@ -111,8 +111,8 @@ def test_default_only_for_runs_with_a_sphere_set_and_old_graphs_are_reexported(s
     import onnx
 
     from prt_torch.blockers import fit_spheres
-    from prt_torch.compare.methods.shexp import Shexp
-    from prt_torch.export.shexp_graph import export_shexp, is_current
+    from prt_torch.shexp.compare import Shexp
+    from prt_torch.shexp.graph import export_shexp, is_current
 
     ctx, fs = setup
     assert Shexp.default and not Shexp.available(ctx)  # no export: not in the default list

@@ -1,4 +1,4 @@
-"""The deformable export (prt_torch.export.deformable): the positions-in graph and the deform data of a cloth run."""
+"""The deformable export (prt_torch.cloth.export): the positions-in graph and the deform data of a cloth run."""
 
 from __future__ import annotations
 
@@ -53,7 +53,7 @@ def test_vertex_last_dihedral_graph_is_the_numpy_rule() -> None:
 
     from prt_torch.deform.dihedral import dihedral_angles
     from prt_torch.deform.mesh import interior_edges
-    from prt_torch.export.deformable import position_features_module
+    from prt_torch.cloth.export import position_features_module
 
     rest, faces = flag_mesh(9, 7)
     edges = interior_edges(faces)
@@ -73,7 +73,7 @@ def test_vertex_last_dihedral_graph_is_the_numpy_rule() -> None:
 def test_deform_data_round_trip_gives_the_bake_frames(deformable_run) -> None:
     """The shipped frame operator (deform.npz) gives exactly the frames of one rebuilt from the rest mesh."""
     from prt_torch.deform.frames import FrameOperator
-    from prt_torch.export.deform_data import DeformData
+    from prt_torch.cloth.deform_data import DeformData
     from prt_torch.rundir import RunDir
 
     run_dir, spec = deformable_run
@@ -89,7 +89,7 @@ def test_deform_data_round_trip_gives_the_bake_frames(deformable_run) -> None:
 
 
 def test_tampered_positions_graph_is_refused(deformable_run, tmp_path: Path) -> None:
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
 
     run_dir, _ = deformable_run
     copy = tmp_path / "run"

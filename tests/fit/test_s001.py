@@ -25,7 +25,7 @@ def _truth(run: Path, rows: np.ndarray) -> dict[str, np.ndarray]:
 def test_cpca_with_one_cluster_is_scikit_learn_pca() -> None:
     from sklearn.decomposition import PCA
 
-    from prt_torch.fit.s001 import cpca_segment
+    from prt_torch.s001.fit import cpca_segment
 
     rng = np.random.default_rng(0)
     x = (rng.normal(size=(12, 30, 3)) @ rng.normal(size=(3, 16)) + 0.1 * rng.normal(size=(12, 30, 16)))
@@ -40,8 +40,8 @@ def test_cpca_with_one_cluster_is_scikit_learn_pca() -> None:
 
 
 def test_stored_sampled_poses_match_the_bake(run: Path) -> None:
-    from prt_torch.models.posespace import CompressedTransfer
-    from prt_torch.player.s001 import S001Player
+    from prt_torch.s001.posespace import CompressedTransfer
+    from prt_torch.s001.player import S001Player
     from prt_torch.rundir import RunDir
 
     data = CompressedTransfer.load(RunDir(run).s001)
@@ -63,8 +63,8 @@ def test_stored_sampled_poses_match_the_bake(run: Path) -> None:
 
 
 def test_heldout_interpolation_beats_the_mean_pose(run: Path) -> None:
-    from prt_torch.models.posespace import CompressedTransfer
-    from prt_torch.player.s001 import S001Player
+    from prt_torch.s001.posespace import CompressedTransfer
+    from prt_torch.s001.player import S001Player
     from prt_torch.rundir import RunDir
 
     ds = RunDir(run).dataset()
@@ -86,7 +86,7 @@ def test_heldout_interpolation_beats_the_mean_pose(run: Path) -> None:
 def test_train_again_keeps_a_current_file(run: Path, s001_run: tuple[Path, Path]) -> None:
     from prt_torch.bake.store import BakedDataset
     from prt_torch.config import load_config
-    from prt_torch.fit.s001 import s001_key, train_s001
+    from prt_torch.s001.fit import s001_key, train_s001
     from prt_torch.rundir import RunDir
 
     cfg = load_config(s001_run[0])
@@ -114,8 +114,8 @@ def test_train_again_keeps_a_current_file(run: Path, s001_run: tuple[Path, Path]
 def test_bad_input_is_one_line(run: Path, synthetic_dataset: Path) -> None:
     from prt_torch.bake.store import open_dataset
     from prt_torch.fit.config import S001Config
-    from prt_torch.fit.s001 import fit_s001
-    from prt_torch.models.posespace import CompressedTransfer
+    from prt_torch.s001.fit import fit_s001
+    from prt_torch.s001.posespace import CompressedTransfer
     from prt_torch.rundir import RunDir
 
     skin = (np.array([-1, 0]), np.zeros((1, 1), int), np.ones((1, 1)))

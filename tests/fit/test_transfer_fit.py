@@ -1,4 +1,4 @@
-"""Learned transfer (prt_torch.fit.transfer): exact recovery, the reductions vs scikit-learn, the MLP, bad input."""
+"""Learned transfer (prt_torch.transfer.fit): exact recovery, the reductions vs scikit-learn, the MLP, bad input."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from prt_torch.bake.store import SplitData
 from prt_torch.errors import PrtError
 from prt_torch.fit.config import TrainConfig, TransferConfig
-from prt_torch.fit.transfer import check_target, fit_transfer, reduce_transfer, transfer_rel_err
+from prt_torch.transfer.fit import check_target, fit_transfer, reduce_transfer, transfer_rel_err
 
 F, A, V, ORDER = 48, 6, 30, 3
 C = ORDER * ORDER

@@ -1,4 +1,4 @@
-"""Local visibility models (prt_torch.models.local, prt_torch.fit.local, prt_torch.deform.local_soa).
+"""Local visibility models (prt_torch.local.models, prt_torch.local.fit, prt_torch.local.soa).
 
 Independent references: brute-force nearest neighbours (all distances, numpy argmin) for the neighbour pattern;
 a per-(vertex, sample) loop of ``F_i @ (p_n - p_i)`` for the offsets; exact invariance under a rigid motion of the
@@ -19,11 +19,11 @@ from scipy.spatial.transform import Rotation
 
 from prt_torch.deform.clusters import spatial_clusters
 from prt_torch.deform.frames import FrameOperator
-from prt_torch.deform.local_soa import LocalOffsetsSoA, offsets_inputs
+from prt_torch.local.soa import LocalOffsetsSoA, offsets_inputs
 from prt_torch.errors import PrtError
 from prt_torch.fit.config import LocalConfig
-from prt_torch.fit.local import fit_local, fit_local_linear
-from prt_torch.models.local import (
+from prt_torch.local.fit import fit_local, fit_local_linear
+from prt_torch.local.models import (
     LocalVisibility,
     load_local,
     local_offsets,
@@ -138,7 +138,7 @@ def test_mlp_learns_what_a_linear_model_cannot(waving_sheet: dict[str, np.ndarra
 
     lin, _ = fit_local("linear", w["pos"], w["frames"], y, w["rest"], w["rest_frames"], cfg, 0)
     mlp, _ = fit_local("mlp", w["pos"], w["frames"], y, w["rest"], w["rest_frames"], cfg, 0)
-    from prt_torch.export.local_graph import table_lowering
+    from prt_torch.local.graph import table_lowering
 
     for m in (lin, mlp):  # fits leave the per-vertex tables on the float16 grid: the export stores them exactly
         assert table_lowering(m.head)["fp16_weights"] is not None
@@ -199,9 +199,9 @@ def test_head_runs_the_same_in_onnxruntime(tmp_path: Path, waving_sheet: dict[st
 def test_fp16_tables_are_stored_exactly(tmp_path: Path, waving_sheet: dict[str, np.ndarray]) -> None:
     """Tables on the float16 grid (as fits leave them) are stored in float16: fewer bytes, onnxruntime still equal
     to torch; tables off the grid stay float32."""
-    from prt_torch.export.local_graph import table_lowering
+    from prt_torch.local.graph import table_lowering
     from prt_torch.export.onnx_file import export_onnx, initializer_bytes
-    from prt_torch.fit.local import to_fp16_grid
+    from prt_torch.local.fit import to_fp16_grid
     from prt_torch.runtime.session import OrtGraph
 
     w = waving_sheet

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from prt_torch.errors import PrtError
-from prt_torch.models.posespace import (
+from prt_torch.s001.posespace import (
     PoseSpace,
     interpolate_coefficients,
     nrbf_weights,

@@ -1,4 +1,4 @@
-"""The deformable player (prt_torch.player.deformable): frames, shading, no torch, bad input."""
+"""The deformable player (prt_torch.cloth.player): frames, shading, no torch, bad input."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ def deformable_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, obje
 
 @pytest.fixture(scope="module")
 def player(deformable_run):
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
 
     p = DeformablePlayer(deformable_run[0], brdf="phong")
     yield p
@@ -71,7 +71,7 @@ def test_graph_modes_agree(player, deformable_run, mode: str, features: str) -> 
     """split (numpy features, pose graph, shading graph: the default) == the fused graphs (cluster order:
     fused.onnx on the numpy features, positions_fused.onnx on the positions) == the overlapped split path (either
     features)."""
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
 
     assert player.mode == "split" and player.vertex_order is not None
     pos = heldout_positions()[3:4]
@@ -89,7 +89,7 @@ def test_pipeline_stream_equals_split_frame_by_frame(player, deformable_run, tmp
     """The pipelined playback (frame i + 1's stage on the worker while frame i is shaded) gives every frame's state
     and radiance of the split path, in order, for every prefix length (0, 1 and the whole sequence); a single frame
     through compute() is the split path too; play() in pipeline mode writes a full timings file."""
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
 
     seq = player.make_sequence(heldout_positions()[:9], name="held")
     ref = [(s.frames.copy(), r) for s, r in player.compute_stream(seq, len(seq))]
@@ -121,7 +121,7 @@ def test_body_features_play_alike_in_every_mode(body_run) -> None:
     """A run with body features after the dihedral angles (the cape's append_pose): split, pipeline, overlap and both
     fused graphs give the same radiance for the same positions and body features; other body features give other
     radiance (they reach the model); a sequence without them is a one-line error."""
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
 
     n_body = 5
     pos = heldout_positions()[:6]
@@ -152,7 +152,7 @@ def test_numpy_features_equal_the_positions_graph(player, deformable_run) -> Non
     features in the graph) and the features == the numpy rule cloth_features; whole frames agree across the two
     feature modes."""
     from prt_torch.cloth.inputs import cloth_features
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
 
     assert player.features == "numpy"
     pos = heldout_positions()[4:7]
@@ -203,7 +203,7 @@ def test_play_writes_video_and_timings(player, tmp_path: Path) -> None:
 
 
 def test_deformable_player_never_imports_torch(deformable_run) -> None:
-    code = (f"import sys, numpy as np\nfrom prt_torch.player.deformable import DeformablePlayer\n"
+    code = (f"import sys, numpy as np\nfrom prt_torch.cloth.player import DeformablePlayer\n"
             f"from tests.player.deformable_run import heldout_positions\n"
             f"p = DeformablePlayer({str(deformable_run[0])!r})\n"
             f"s, r = p.compute_positions(heldout_positions()[:2])\nassert np.isfinite(r).all()\n"
@@ -256,7 +256,7 @@ def test_cli_play_sequence(deformable_run, tmp_path: Path, monkeypatch: pytest.M
     """`prt play RUN --sequence NAME --out MP4` plays a cached sequence (the cache reader stubbed) and writes the
     video and the timings; --sequence with --clip is a one-line error."""
     from prt_torch.cli import main
-    from prt_torch.player.deformable import DeformablePlayer
+    from prt_torch.cloth.player import DeformablePlayer
 
     monkeypatch.setattr(DeformablePlayer, "_cache", lambda self: _Cache())
     out = tmp_path / "wind.mp4"

@@ -1,8 +1,8 @@
-"""``prt play --renderer s001|posespace`` (:mod:`prt_torch.player.s001_renderer`) on the tiny seed-001 run.
+"""``prt play --renderer s001|posespace`` (:mod:`prt_torch.s001.renderer`) on the tiny seed-001 run.
 
 Reference: the frame posed by the bake's code (``Character.pose`` + ``skin_mesh`` + ``rig.vertex_frames``, as
 ``prt compare`` poses clips), the interpolated matrices ``S001Player.transfer`` shaded by
-:func:`prt_torch.shade.transfer_matrix.shade_matrix` (eq. 5 per vertex, not the player's eq. 9 order) with the
+:func:`prt_torch.s001.shading.shade_matrix` (eq. 5 per vertex, not the player's eq. 9 order) with the
 procedural sky's SH and the catalogue BRDF's matrix factors.
 """
 
@@ -23,10 +23,10 @@ def test_play_radiance_is_shade_matrix_of_interpolated_matrices(s001_run: tuple[
     from prt_torch.brdf.matrix import brdf_matrix, factor
     from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.player.lighting import load_lighting
-    from prt_torch.player.s001_renderer import S001RunPlayer
+    from prt_torch.s001.renderer import S001RunPlayer
     from prt_torch.rig.vertex_frames import vertex_frames
     from prt_torch.rundir import RunDir
-    from prt_torch.shade.transfer_matrix import shade_matrix
+    from prt_torch.s001.shading import shade_matrix
 
     _, run = s001_run
     p = S001RunPlayer(run, brdf="phong", scheme=scheme, window_size=(64, 64))
@@ -72,7 +72,7 @@ def test_play_command_writes_frames_without_torch(s001_run: tuple[Path, Path], t
 
 def test_play_s001_without_s001_npz_is_one_line_error(s001_run: tuple[Path, Path], tmp_path: Path) -> None:
     from prt_torch.cli import main
-    from prt_torch.player.s001_renderer import S001RunPlayer
+    from prt_torch.s001.renderer import S001RunPlayer
 
     empty = tmp_path / "run"
     empty.mkdir()

@@ -9,7 +9,7 @@ from sklearn.cluster import SpectralClustering
 from sklearn.metrics import adjusted_rand_score
 
 from prt_torch.errors import PrtError
-from prt_torch.reduce import ncut
+from prt_torch.s001 import ncut
 
 
 def _blocks(sizes: list[int], inter: float, seed: int = 0) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from prt_torch.errors import PrtError
-from prt_torch.reduce.quantize import dequantize16, quantize16, quantized_nbytes
+from prt_torch.s001.quantize import dequantize16, quantize16, quantized_nbytes
 from tests.tolerance import assert_bitwise
 
 

@@ -8,8 +8,8 @@ import pytest
 from sklearn.metrics import homogeneity_score
 
 from prt_torch.errors import PrtError
-from prt_torch.reduce import rcpca
-from prt_torch.reduce.rcpca import RevisedCPCA
+from prt_torch.s001 import rcpca
+from prt_torch.s001.rcpca import RevisedCPCA
 from tests.tolerance import assert_bitwise
 
 NOISE = 1e-3

@@ -20,7 +20,7 @@ def scene_run_copy(base: Path, name: str) -> Path:
         shutil.copytree(src, dst)
         run = RunDir(dst)
         if not (run.shexp_path.is_file() and run.blockers_path.is_file()):
-            from prt_torch.export.shexp_graph import ship_shexp
+            from prt_torch.shexp.graph import ship_shexp
 
             ship_shexp(run, run.character(), int(run.export_meta()["sh_order"]), 32)
     return dst

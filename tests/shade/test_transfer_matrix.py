@@ -16,7 +16,7 @@ from prt_torch.sh.quadrature import hemisphere_directions, random_rotations
 from prt_torch.sh.rotation import sh_rotation
 from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
 from prt_torch.shade.rpo_shading import shade_rpo
-from prt_torch.shade.transfer_matrix import shade_matrix
+from prt_torch.s001.shading import shade_matrix
 
 N = 4
 

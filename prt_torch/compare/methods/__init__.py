@@ -11,7 +11,7 @@ path, :mod:`prt_torch.eval.shipping`) or radiance directly. Built in:
 ``learned_quadratic``, the shipped ``visibility.onnx`` for the exported kind, the others' ``VisibilityGraph``
 ``learned_mlp``        exported into the run's compare directory
 ``learned_local_*``    the run's local models (``train.local``): neighbour offsets (numba) + the network in
-                       onnxruntime (:mod:`prt_torch.compare.methods.local`)
+                       onnxruntime (:mod:`prt_torch.local.compare`)
 ``pca_floor``          (opt-in) an oracle: the baked visibility through the model's output PCA - the error every
                        regressor with that basis has at least
 =====================  ===========================================================================
@@ -67,9 +67,9 @@ __all__ = ["METHODS", "CompareRun", "FrameBatch", "FrameSet", "Method", "MethodB
 from prt_torch.compare.methods import sh_truth as _sh_truth  # noqa: E402,F401,I001
 from prt_torch.compare.methods import unshadowed as _unshadowed  # noqa: E402,F401
 from prt_torch.compare.methods import learned as _learned  # noqa: E402,F401
-from prt_torch.compare.methods import local as _local  # noqa: E402,F401
-from prt_torch.compare.methods import sg_vct as _sg_vct  # noqa: E402,F401
-from prt_torch.compare.methods import shexp as _shexp  # noqa: E402,F401
-from prt_torch.compare.methods import learned_transfer as _learned_transfer  # noqa: E402,F401
-from prt_torch.compare.methods import s001 as _s001  # noqa: E402,F401
+from prt_torch.local import compare as _local  # noqa: E402,F401
+from prt_torch.vct import compare as _sg_vct  # noqa: E402,F401
+from prt_torch.shexp import compare as _shexp  # noqa: E402,F401
+from prt_torch.transfer import compare as _learned_transfer  # noqa: E402,F401
+from prt_torch.s001 import compare as _s001  # noqa: E402,F401
 from prt_torch.compare.methods import pca_floor as _pca_floor  # noqa: E402,F401

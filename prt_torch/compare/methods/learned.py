@@ -11,7 +11,7 @@ shipped graph at the run's precision, ``export.json`` ``precision``), so the acc
 are rows of the same table.
 
 A DEFORMABLE run (``export.json`` has ``deformable``): every learned method runs the POSITIONS-IN graph (the shipped
-``positions.onnx``, or one exported here the same way, :func:`prt_torch.export.deformable.positions_graph_module`):
+``positions.onnx``, or one exported here the same way, :func:`prt_torch.cloth.export.positions_graph_module`):
 positions -> dihedral angles -> model, so its time includes the features, as in ``prt play --sequence``.
 """
 
@@ -82,8 +82,8 @@ class Learned(MethodBase):
         model = run.run.model(self.kind)
         graph = VisibilityGraph(model, precision=prec).eval()
         if self.deform:  # positions -> dihedral angles [+ body features] -> the model, as the export ships it
-            from prt_torch.export.deform_data import DeformData
-            from prt_torch.export.deformable import graph_input_names, positions_graph_module
+            from prt_torch.cloth.deform_data import DeformData
+            from prt_torch.cloth.export import graph_input_names, positions_graph_module
 
             d = DeformData.load(run.run.deform_path)
             module = positions_graph_module(graph, d.edges, d.n_body_features)

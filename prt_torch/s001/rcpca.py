@@ -5,7 +5,7 @@ stacked over poses that is ``stream (P, V, C, C)`` (or ``(P, V, D)``). A SAMPLE 
 matrix at one pose, flattened row-major to ``D = C^2`` float32 values (``T[c_out, c_in]``, local-frame
 rows). The paper's data matrix has vertices as rows and poses as columns. After the consistent
 segmentation (``segments (V,)``, the skinning clusters, ``n_r`` segments) and mesh segment clustering
-(``groups (n_r, P)``: the ncut pose groups ``Omega_{k,g}`` of :func:`prt_torch.reduce.ncut.cluster_segments`),
+(``groups (n_r, P)``: the ncut pose groups ``Omega_{k,g}`` of :func:`prt_torch.s001.ncut.cluster_segments`),
 a UNIT ("row of corresponding vertices" in the paper) is ``(v, g)``: vertex ``v``'s transfer matrices at
 the poses of group ``g`` of its segment (``~leaf_size`` samples). Every sample of a unit belongs to the
 same PCA cluster (the paper's second requirement), so run-time interpolation (eq. 7) mixes coefficients
@@ -64,7 +64,7 @@ Error accounting: ``sse_`` is the exact summed squared reconstruction error of t
 n_basis eigenvalues)`` of the refitted models, which bounds the error of projecting the members onto
 the basis (the models are built by merges only; truncated scatters are PSD-below the true one).
 Stored bytes (:meth:`RevisedCPCA.nbytes`): coefficients as uint16 (per cluster and basis vector
-scale/offset, :func:`prt_torch.reduce.quantize.quantize16`), means+bases float32, unit table int32.
+scale/offset, :func:`prt_torch.s001.quantize.quantize16`), means+bases float32, unit table int32.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ import numpy as np
 import scipy.linalg
 
 from prt_torch.errors import check
-from prt_torch.reduce.quantize import dequantize16, quantize16, quantized_nbytes
+from prt_torch.s001.quantize import dequantize16, quantize16, quantized_nbytes
 
 
 @dataclass

@@ -1,5 +1,5 @@
 """The deform data file of a deformable run (``RunDir.deform_path``, ``.npz``): written by ``prt export``
-(:func:`prt_torch.export.deformable.ship_deformable`), read by the player. numpy only (never torch): the player
+(:func:`prt_torch.cloth.export.ship_deformable`), read by the player. numpy only (never torch): the player
 imports this module.
 
 Keys: the frame operator's arrays (:meth:`prt_torch.deform.frames.FrameOperator.arrays`, prefixed ``op_``),
@@ -21,7 +21,7 @@ from prt_torch.rundir import RunDir
 
 
 def write_deform_data(run: RunDir, spec: Any) -> None:
-    """Write the deform data of ``spec`` (a :class:`prt_torch.export.deformable.DeformSpec`: ``operator``, ``edges``,
+    """Write the deform data of ``spec`` (a :class:`prt_torch.cloth.export.DeformSpec`: ``operator``, ``edges``,
     ``cloth_slice``, ``n_body_features``) atomically to ``run.deform_path``."""
     arrays = {f"op_{k}": np.asarray(v) for k, v in spec.operator.arrays().items()}
     s = spec.cloth_slice

@@ -2,11 +2,11 @@
 
 :class:`TransferPlayer` is a :class:`~prt_torch.player.player.Player` (same posing, camera, tone map, mesh renderer,
 video/PNG writers and timings) whose radiance per frame is the run's exported transfer graph
-(``transfer.onnx``, :mod:`prt_torch.export.transfer_graph`, listed in ``export.json`` ``transfer``): onnxruntime
+(``transfer.onnx``, :mod:`prt_torch.transfer.graph`, listed in ``export.json`` ``transfer``): onnxruntime
 evaluates ``pose -> t (V, C6) [, t_sss]`` and the dot products ``L . t`` [``L . t_sss``] with the player's lighting
 (``--env`` or the procedural sky, as world-frame SH of the run's order, rotated by ``--light-angle``), and only the
 ``(V, 3)`` radiance outputs leave the session; numpy colours them by the shared rule
-:func:`prt_torch.export.transfer_shading.transfer_shading` (``albedo * (L . t) + albedo / mean(albedo) * (L . t_sss)``,
+:func:`prt_torch.transfer.shading.transfer_shading` (``albedo * (L . t) + albedo / mean(albedo) * (L . t_sss)``,
 ``albedo`` the current BRDF's RPO tint: the rule of ``prt compare``'s ``learned_transfer``). A diffuse transfer has
 no view dependence: a glossy BRDF shades as its diffuse stand-in of the same tint.
 
@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError, check
-from prt_torch.export.transfer_shading import ARRAYS, light_input, radiance_output, transfer_shading
+from prt_torch.transfer.shading import ARRAYS, light_input, radiance_output, transfer_shading
 from prt_torch.player.player import Player
 from prt_torch.player.timing import FrameTimer
 from prt_torch.rundir import RunDir
@@ -41,7 +41,7 @@ class TransferPlayer(Player):
     def __init__(self, run_dir: str | os.PathLike[str] | RunDir, env: str | os.PathLike[str] | None = None,
                  brdf: str | None = None, threads: int = 2, window_size: tuple[int, int] = (480, 640),
                  device: str = "cpu", spinning: bool = False, **kw: Any) -> None:
-        from prt_torch.export.transfer_shading import exported_transfer
+        from prt_torch.transfer.shading import exported_transfer
 
         run = RunDir.of(run_dir)
         run.export_meta()  # verified: every file it lists, the transfer graph included (one line when not)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from prt_torch.commands import heightfield as _hf
+from prt_torch.heightfield import command as _hf
 
 HELP = "Height-field visibility vs Embree: ms per frame and ratio (alias of `prt heightfield`)."
 

@@ -1,4 +1,4 @@
-"""Fitting the local visibility models (:mod:`prt_torch.models.local`) of a deformable run (``train.local``).
+"""Fitting the local visibility models (:mod:`prt_torch.local.models`) of a deformable run (``train.local``).
 
 * ``linear``: ``v_i = m_i + x_i W`` minimising ``sum_{f,i} |y_fi - m_i - x_fi W|^2 + alpha N tr(x'x)/D |W|^2``
   over all (frame, vertex) samples (``N`` of them, ``D = 3 S`` inputs): closed form. With per-vertex
@@ -23,7 +23,7 @@ import torch
 
 from prt_torch.errors import check
 from prt_torch.fit.config import LocalConfig
-from prt_torch.models.local import LocalVisibility, local_offsets, neighbour_pattern, sample_offsets
+from prt_torch.local.models import LocalVisibility, local_offsets, neighbour_pattern, sample_offsets
 
 #: frames per chunk when accumulating the linear normal equations / predicting
 CHUNK = 8
@@ -181,8 +181,8 @@ def local_key(ds: Any, cfg: LocalConfig, seed: int) -> str:
 
 def rest_geometry(ds: Any) -> tuple[np.ndarray, np.ndarray]:
     """``rest (V, 3)``, ``rest_frames (V, 3, 3)`` of a deformable dataset's subject: the character file beside
-    it and the bake's frame rule (:func:`prt_torch.bake.deformable.frame_operator`)."""
-    from prt_torch.bake.deformable import frame_operator
+    it and the bake's frame rule (:func:`prt_torch.cloth.bake.frame_operator`)."""
+    from prt_torch.cloth.bake import frame_operator
     from prt_torch.rig.character import Character
     from prt_torch.rundir import RunDir
 
@@ -198,7 +198,7 @@ def train_local(ds: Any, run: Any, cfg: Any, splits: dict[str, Any], progress: A
     ``{kind: {fit_s, bytes, train, heldout}}``; without ``train.local`` stale local files are removed (``None``)."""
     from prt_torch.errors import DamagedArtifact, StaleArtifact
     from prt_torch.metrics import vis_rel_err
-    from prt_torch.models.local import LOCAL_KINDS, load_local, save_local
+    from prt_torch.local.models import LOCAL_KINDS, load_local, save_local
 
     lcfg: LocalConfig | None = cfg.local
     for k in LOCAL_KINDS:

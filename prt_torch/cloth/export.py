@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from prt_torch.errors import MissingArtifact, check
-from prt_torch.export.deform_data import write_deform_data
+from prt_torch.cloth.deform_data import write_deform_data
 from prt_torch.rundir import RunDir
 
 if TYPE_CHECKING:
@@ -64,9 +64,9 @@ def run_config_dict(run: RunDir) -> dict[str, Any]:
 
 
 def is_deformable(run: RunDir) -> bool:
-    """Whether the run's dataset is a deformable one (:func:`prt_torch.bake.deformable.is_deformable` of its attrs;
+    """Whether the run's dataset is a deformable one (:func:`prt_torch.cloth.bake.is_deformable` of its attrs;
     False without a dataset)."""
-    from prt_torch.bake.deformable import is_deformable as attrs_deformable
+    from prt_torch.cloth.bake import is_deformable as attrs_deformable
 
     try:
         attrs = dict(run.dataset().attrs)
@@ -79,7 +79,7 @@ def deform_spec(run: RunDir) -> DeformSpec:
     """The :class:`DeformSpec` of a deformable run: cloth edges and layout from
     :class:`prt_torch.cloth.subject.ClothSubject` of the recorded config, the frame operator from the character's
     rest mesh and the dataset's cluster labels (:meth:`FrameOperator.from_rest`, the bake's rule)."""
-    from prt_torch.bake.deformable import load_subject
+    from prt_torch.cloth.bake import load_subject
     from prt_torch.config import config_from_dict
 
     cfg = config_from_dict(run_config_dict(run), source=f"{run.dataset_path} config attrs")
@@ -101,9 +101,9 @@ def _body_width(run: RunDir, subject: Any) -> int:
 
 
 def frame_operator(run: RunDir) -> Any:
-    """:class:`FrameOperator` of the run's subject (:func:`prt_torch.bake.deformable.frame_operator`: rest mesh of
+    """:class:`FrameOperator` of the run's subject (:func:`prt_torch.cloth.bake.frame_operator`: rest mesh of
     ``character.npz``, the dataset's cluster labels - the bake's rule)."""
-    from prt_torch.bake.deformable import frame_operator as subject_operator
+    from prt_torch.cloth.bake import frame_operator as subject_operator
 
     return subject_operator(run.character(), np.asarray(run.dataset().cluster))
 

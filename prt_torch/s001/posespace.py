@@ -227,7 +227,7 @@ class CompressedTransfer:
         groups: ``(K, P)`` int16 normalized-cut group of each pose per segment; segment ``(V,)`` int32;
         vertex_cluster: ``(G, V)`` int32 PCA cluster of vertex ``v`` in pose group ``g`` of its segment;
         mean: ``(M, D)`` float32; basis ``(M, nb, D)`` float32 orthonormal rows;
-        coeff_q: ``(P, V, nb)`` uint16 16-bit coefficients (:func:`prt_torch.reduce.quantize.quantize16` per PCA
+        coeff_q: ``(P, V, nb)`` uint16 16-bit coefficients (:func:`prt_torch.s001.quantize.quantize16` per PCA
         cluster), ``c = coeff_offset[m] + q * coeff_scale[m]`` with ``m`` the vertex's cluster in that pose;
         coeff_offset / coeff_scale ``(M, nb)`` float32;
         ref_frames: ``(V, 3, 3)`` float32 the reference pose's vertex frames;

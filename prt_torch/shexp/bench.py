@@ -3,7 +3,7 @@
 On the run's held-out frames (the baked positions and vertex frames ``prt compare`` uses, batch 1), interleaved
 frame by frame (the machine is shared: only side-by-side ratios and medians mean anything):
 
-* ``ort``: the SHEXP graph of THIS code (:func:`prt_torch.export.shexp_graph.export_shexp`, exported to a
+* ``ort``: the SHEXP graph of THIS code (:func:`prt_torch.shexp.graph.export_shexp`, exported to a
   temporary file) through onnxruntime (:class:`prt_torch.scene.occluders.ShexpGraph`, no culling), the
   character's vertices under its own spheres;
 * ``shipped``: the run's own ``shexp.onnx`` (as written by the ``prt export`` that made it: an older export
@@ -51,10 +51,10 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.blockers import SphereSet, pose_spheres
     from prt_torch.commands import _validate as V
     from prt_torch.compare.methods import METHODS
-    from prt_torch.compare.methods.shexp import frame_skins
+    from prt_torch.shexp.compare import frame_skins
     from prt_torch.compare.run import heldout_frames, load_compare_run
     from prt_torch.errors import check
-    from prt_torch.export.shexp_graph import export_shexp
+    from prt_torch.shexp.graph import export_shexp
     from prt_torch.scene.ground import make_ground
     from prt_torch.scene.occluders import ShexpGraph
     from prt_torch.shexp import shexp_visibility

@@ -1,8 +1,8 @@
 """The local data file of a run shipping a local visibility network (``RunDir.local_data_path``, ``local.npz``):
-written by ``prt export`` (:func:`prt_torch.export.local_graph.ship_local`), read by the player. numpy only (never
+written by ``prt export`` (:func:`prt_torch.local.graph.ship_local`), read by the player. numpy only (never
 torch): the player imports this module.
 
-Keys: ``neighbours (V, S)``, the model's neighbour indices (:func:`prt_torch.models.local.neighbour_pattern`), int16
+Keys: ``neighbours (V, S)``, the model's neighbour indices (:func:`prt_torch.local.models.neighbour_pattern`), int16
 up to 32,767 vertices, else int32.
 """
 

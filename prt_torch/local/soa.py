@@ -1,11 +1,11 @@
-"""Run-time twin of :func:`prt_torch.models.local.local_offsets` for the player (numba, or numpy; vertex-last).
+"""Run-time twin of :func:`prt_torch.local.models.local_offsets` for the player (numba, or numpy; vertex-last).
 
 onnxruntime's Gather of ``V x S`` neighbour coordinates costs ~1.5 ms per coordinate at 7.7k vertices and 24
 samples (any axis, measured), and the same rule in numpy (``take`` of the coordinate rows, then 9 multiply-adds
 over ``(S, V)`` temporaries) ~2.5 ms at the cape's 11.2k vertices and 40 samples. One compiled pass (numba:
 gather, subtract and rotate per sample, no temporaries, GIL released) does it in about half the time (``prt bench
 play`` measures both: ``local_offsets`` and ``local_offsets_numpy``). So the player computes the local model's
-input here and runs only the network (:class:`prt_torch.models.local.LocalHead`) in onnxruntime, as it does with
+input here and runs only the network (:class:`prt_torch.local.models.LocalHead`) in onnxruntime, as it does with
 the dihedral angles (:mod:`prt_torch.deform.dihedral_soa`).
 """
 
@@ -37,7 +37,7 @@ def _offsets_kernel(p: np.ndarray, f: np.ndarray, idx: np.ndarray, out: np.ndarr
 class LocalOffsetsSoA:
     """``positions (B, 3, V)``, ``frames (B, 9, V)`` (entry ``3 k + c`` = ``F[k, c]``, rows t, b, n) ->
     ``(B, 3 S, V)`` float32: row ``k S + s`` is frame row ``k`` dotted with neighbour ``s``'s offset (the
-    component-major order of :func:`prt_torch.models.local.local_offsets`).
+    component-major order of :func:`prt_torch.local.models.local_offsets`).
 
     ``engine``: ``"numba"`` (default: one compiled pass) or ``"numpy"`` (``take`` + multiply-adds; the same values
     to float rounding, kept for the benchmark's side-by-side)."""

@@ -1,15 +1,15 @@
 """``learned_transfer``: seed 000's learned diffuse transfer (+ subsurface), shaded ``albedo * (L . t) + sss_tint *
 (L . t_sss)`` (a radiance method).
 
-The run's ``models/transfer_<kind>.pt`` (``prt train`` with ``train.transfer``, :mod:`prt_torch.fit.transfer`;
+The run's ``models/transfer_<kind>.pt`` (``prt train`` with ``train.transfer``, :mod:`prt_torch.transfer.fit`;
 ``transfer.json`` lists them) predicts the world-frame transfer ``t (V, C6)`` of a pose, and
 ``models/subsurface_<kind>.pt`` (when the bake had ``bake.subsurface``) the subsurface exit-radiance transfer
-``t_sss``. The graph is :mod:`prt_torch.export.transfer_graph`'s ``(pose, light) -> (t, L . t [, t_sss, L . t_sss])``:
+``t_sss``. The graph is :mod:`prt_torch.transfer.graph`'s ``(pose, light) -> (t, L . t [, t_sss, L . t_sss])``:
 the run's exported ``transfer.onnx`` (``prt export``, parity-checked there) when it is the kind compared and the
 lighting order matches, else the same graph written into the compare directory by the same function
 (re-exported when the model file is newer); run through onnxruntime (:class:`prt_torch.runtime.session.OrtGraph`).
 ``L``: the player's lighting as world-frame SH (``lighting.sh``, the run's order; the first ``min(C, C6)``
-coefficients of ``t`` meet it). Colour: :func:`prt_torch.export.transfer_shading.transfer_shading` (ONE rule for this
+coefficients of ``t`` meet it). Colour: :func:`prt_torch.transfer.shading.transfer_shading` (ONE rule for this
 method, ``baked_transfer`` and ``prt play --renderer transfer``): ``albedo`` the tint of each compared BRDF's shipped
 RPO, ``sss_tint = albedo / mean(albedo)`` (the baked subsurface already carries its dipole material's reflectance).
 A diffuse transfer has no view dependence: the glossy column is that BRDF's diffuse stand-in of the same albedo
@@ -19,7 +19,7 @@ which ``sh_truth`` (direct lighting, opaque) has not.
 ``learned_transfer`` runs ``transfer.json``'s default kind; ``learned_transfer_<kind>`` (opt-in) each trained kind.
 ``info()`` adds ``transfer_rel_err`` (and ``subsurface_rel_err``): the compared frames' predicted transfer vs the
 baked one (held-out dataset frames; ``None`` for frames posed here), the full-sphere relative L2 of
-:mod:`prt_torch.fit.transfer`.
+:mod:`prt_torch.transfer.fit`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy as np
 
 from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
 from prt_torch.errors import DamagedArtifact, check
-from prt_torch.export.transfer_shading import ARRAYS, light_dot, light_input, transfer_shading
+from prt_torch.transfer.shading import ARRAYS, light_dot, light_input, transfer_shading
 from prt_torch.shapes import check_shape
 
 ARRAY = "transfer"
@@ -41,7 +41,7 @@ def transfer_radiance(t: np.ndarray, light_sh: np.ndarray, albedo: dict[str, np.
                       t_sss: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """``{brdf: (B, V, 3)}`` radiance of transfer ``t (B, V, C6)`` (and subsurface transfer ``t_sss``, same shape)
     under world-frame SH lighting ``light_sh (C, 3)``: numpy ``L . t`` (the first ``min(C, C6)`` coefficients),
-    coloured by :func:`prt_torch.export.transfer_shading.transfer_shading`; float32."""
+    coloured by :func:`prt_torch.transfer.shading.transfer_shading`; float32."""
     t = np.asarray(t, dtype=np.float32)
     light_sh = np.asarray(light_sh, dtype=np.float32)
     check_shape(t, "B V C", name="transfer_radiance: t")
@@ -99,7 +99,7 @@ class LearnedTransfer(MethodBase):
         self._light: tuple[int, np.ndarray, dict[str, np.ndarray]] | None = None
         self.rel_err: dict[str, float | None] = {a: None for a in self.arrays}
         if len(frames.rows) and (frames.rows >= 0).all() and all(a in run.dataset for a in self.arrays):
-            from prt_torch.fit.transfer import transfer_rel_err
+            from prt_torch.transfer.fit import transfer_rel_err
 
             truth = run.dataset.rows(frames.rows, tuple(self.arrays))
             zero = np.zeros((self.n_light, 3), np.float32)
@@ -109,10 +109,10 @@ class LearnedTransfer(MethodBase):
 
     def _graph(self, run: CompareRun) -> tuple[Any, str]:
         """The graph file: the run's exported ``transfer.onnx`` when it serves this kind and lighting order, else
-        one written into the compare directory (:func:`prt_torch.export.transfer_graph.write_transfer_graph`)."""
+        one written into the compare directory (:func:`prt_torch.transfer.graph.write_transfer_graph`)."""
         from prt_torch.export.onnx_file import read_metadata
-        from prt_torch.export.transfer_graph import load_models, write_transfer_graph
-        from prt_torch.export.transfer_shading import exported_transfer
+        from prt_torch.transfer.graph import load_models, write_transfer_graph
+        from prt_torch.transfer.shading import exported_transfer
 
         entry = exported_transfer(run.run)
         if entry is not None and entry.get("kind") == self.kind_used and entry.get("n_light") == self.n_light:

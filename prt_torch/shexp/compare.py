@@ -61,7 +61,7 @@ class Shexp(MethodBase):
         """Runs exported with a sphere set (:func:`has_sphere_set`): a default method there, unavailable
         elsewhere. (:meth:`prepare` still has a torch path for a run without one, used by tests.) Never for a
         deformable (cloth) dataset: its spheres would be posed by skin matrices, which a vertex cache has not."""
-        from prt_torch.bake.deformable import is_deformable
+        from prt_torch.cloth.bake import is_deformable
 
         return has_sphere_set(run) and not is_deformable(dict(run.dataset.attrs))
 
@@ -74,7 +74,7 @@ class Shexp(MethodBase):
         self.skins = frame_skins(run, frames)
         if shipped:
             from prt_torch.export.onnx_file import initializer_bytes
-            from prt_torch.export.shexp_graph import export_shexp, is_current
+            from prt_torch.shexp.graph import export_shexp, is_current
             from prt_torch.runtime.session import OrtGraph
 
             self.spheres = SphereSet.load(rd.blockers_path)
@@ -91,7 +91,7 @@ class Shexp(MethodBase):
         else:
             import torch
 
-            from prt_torch.export.shexp_graph import blocker_count
+            from prt_torch.shexp.graph import blocker_count
             from prt_torch.shexp import ShexpVisibility
 
             self.spheres = fit_spheres(run.character, blocker_count(run.dataset.attrs))

@@ -22,7 +22,7 @@ Per vertex ``i`` with rest position ``X_i`` and rest frame ``(t0, b0, n0)``:
 * ``linear``: ``v_i = m_i + x_i W``, one ``(3 S, C)`` matrix for all vertices and a per-vertex intercept ``m_i``;
 * ``mlp``: ``v_i = m_i + W_L tanh(... tanh(x_i W_0 + c_i))``, where ``c_i (H,)`` is the vertex's rest
   neighbourhood (rest offsets and rest position) through the first layer, folded into one per-vertex term at fit
-  time (:mod:`prt_torch.fit.local`): near a border or the pole the network knows where it is.
+  time (:mod:`prt_torch.local.fit`): near a border or the pole the network knows where it is.
 
 Input standardisation is folded into ``W`` / ``W_0`` and ``m`` / ``c`` after fitting, so the module holds only
 what it runs.
@@ -93,7 +93,7 @@ def sample_offsets(positions: torch.Tensor, frames: torch.Tensor, neighbours: to
 
 class LocalHead(nn.Module):
     """The network of a local model, vertex-last (the run-time graph; its input comes from the run-time twin
-    :class:`prt_torch.deform.local_soa.LocalOffsetsSoA` in the player): ``offsets (B, 3 S, V)`` -> ``(B, V, C)``.
+    :class:`prt_torch.local.soa.LocalOffsetsSoA` in the player): ``offsets (B, 3 S, V)`` -> ``(B, V, C)``.
 
     Args:
         kind: ``"linear"`` or ``"mlp"``.

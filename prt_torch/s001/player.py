@@ -1,6 +1,6 @@
 """Run-time evaluation of seed 001 (sec. 5, eq. 8-9): interpolated PCA coefficients shaded in the paper's order.
 
-Numpy (+ scipy's k-d tree through :mod:`prt_torch.models.posespace`); no torch in this module.
+Numpy (+ scipy's k-d tree through :mod:`prt_torch.s001.posespace`); no torch in this module.
 
 Shading (eq. 5): ``Gamma = V^T B T L`` with ``B = H G^T`` (``H, G (C, n_t)``, the SVD factors of the SH-projected
 BRDF matrix, :mod:`prt_torch.brdf.matrix`), ``V = y(w_o)`` the SH basis at the local view direction
@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 
 from prt_torch.errors import check
-from prt_torch.models.posespace import CompressedTransfer, segment_rotations
+from prt_torch.s001.posespace import CompressedTransfer, segment_rotations
 from prt_torch.shapes import check_shape
 
 SCHEMES = ("s001", "posespace")

@@ -105,7 +105,7 @@ class DeformablePlayer(Player):
                  blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu",
                  features: str = "numpy", local: bool | None = None) -> None:
         from prt_torch.deform.dihedral_soa import DihedralSoA
-        from prt_torch.export.deform_data import DeformData
+        from prt_torch.cloth.deform_data import DeformData
 
         check(graph in DEFORMABLE_MODES, f"unknown graph mode {graph!r} for a deformable run: expected one of "
                                          f"{list(DEFORMABLE_MODES)}")
@@ -142,8 +142,8 @@ class DeformablePlayer(Player):
         check(local is not True or isinstance(shipped, dict),
               f"{run.path} ships no local visibility model (train.local.default): play it without local=True")
         if isinstance(shipped, dict) and local is not False:
-            from prt_torch.deform.local_soa import LocalOffsetsSoA
-            from prt_torch.export.local_data import load_neighbours
+            from prt_torch.local.soa import LocalOffsetsSoA
+            from prt_torch.local.data import load_neighbours
 
             check(graph in ("split", "pipeline"),
                   f"{run.path} ships a local visibility model (local_{shipped.get('kind')}), which needs the frames "

@@ -7,21 +7,21 @@ sec. 2), and their pose features.
 1. Segments (sec. 2): the skinning clusters (the store's ``cluster``), consistent across poses by construction.
 2. Mesh segment clustering (sec. 3): per segment, recursive normalized cut of its ``P`` posed copies into groups of
    ``leaf_size`` poses, eq. 3 weights from the summed transfer-matrix distances and the bone transforms (the 6D
-   rotation features of every non-root joint stand for ``R_b``): :func:`prt_torch.reduce.ncut.cluster_segments`,
+   rotation features of every non-root joint stand for ``R_b``): :func:`prt_torch.s001.ncut.cluster_segments`,
    which streams the store in vertex blocks.
-3. Segment-relative matrices: ``T_k = T D(R_k)`` (:class:`prt_torch.models.posespace.CompressedTransfer`), the
+3. Segment-relative matrices: ``T_k = T D(R_k)`` (:class:`prt_torch.s001.posespace.CompressedTransfer`), the
    segment rotations from the stored vertex frames; steps 2 and 4 read the store through :class:`RowStream`.
    Clustered PCA (sec. 4) with the paper's row constraint: every row of corresponding vertices of one pose group
    (``|g|`` matrices) belongs to ONE PCA cluster (so eq. 7 interpolates scalar coefficients). ``cpca: segment``
    (default): per segment, ``clusters_per_segment`` clusters of ``n_basis`` basis matrices (+ mean), initialised by
    k-means of the row means, ``cpca_iters`` rounds of (PCA, reassign each row to the cluster of least summed squared
    error); segments streamed in batches that fit ``memory_mb`` (one pass over the store per batch).
-   ``cpca: revised``: section 4's incremental algorithm (:class:`prt_torch.reduce.rcpca.RevisedCPCA`, per-pose
+   ``cpca: revised``: section 4's incremental algorithm (:class:`prt_torch.s001.rcpca.RevisedCPCA`, per-pose
    budget ``m_cpf``, reclustering, merging), which streams one pose at a time. The clusters used per pose are
    reported (``clusters_per_pose_max``).
-4. 16-bit coefficients per PCA cluster and basis (:func:`prt_torch.reduce.quantize.quantize16`).
-5. Run-time data (:class:`prt_torch.models.posespace.CompressedTransfer`): the sampled poses' features, the eq. 6
-   per-segment bone weights (:func:`prt_torch.models.posespace.segment_bone_weights`), the groups, the clusters.
+4. 16-bit coefficients per PCA cluster and basis (:func:`prt_torch.s001.quantize.quantize16`).
+5. Run-time data (:class:`prt_torch.s001.posespace.CompressedTransfer`): the sampled poses' features, the eq. 6
+   per-segment bone weights (:func:`prt_torch.s001.posespace.segment_bone_weights`), the groups, the clusters.
 
 Resumable: ``s001.npz`` records the stage key (settings + the store's key); a current file is kept.
 """
@@ -37,7 +37,7 @@ import numpy as np
 from prt_torch.bake.store import BakedDataset
 from prt_torch.errors import DamagedArtifact, PrtError, StaleArtifact, check
 from prt_torch.fit.config import S001Config, TrainConfig
-from prt_torch.models.posespace import CompressedTransfer, segment_bone_weights
+from prt_torch.s001.posespace import CompressedTransfer, segment_bone_weights
 from prt_torch.rundir import RunDir, stage_key
 
 ARRAY = "transfer_matrix"
@@ -45,7 +45,7 @@ ARRAY = "transfer_matrix"
 
 class RowStream:
     """A ``(P, V, C, C)`` view of the store's ``transfer_matrix`` at dataset ``rows`` with basic slicing
-    (``stream[:, v0:v1]``), as :func:`prt_torch.reduce.ncut.segment_sq_dists_streamed` reads it."""
+    (``stream[:, v0:v1]``), as :func:`prt_torch.s001.ncut.segment_sq_dists_streamed` reads it."""
 
     def __init__(self, ds: BakedDataset, rows: np.ndarray, rot: np.ndarray | None = None,
                  segment: np.ndarray | None = None, name: str = ARRAY) -> None:
@@ -193,8 +193,8 @@ def _segment_cpca(stream: RowStream, seg: np.ndarray, groups: np.ndarray, scfg: 
 def fit_s001(ds: BakedDataset, scfg: S001Config, skinning: tuple[np.ndarray, np.ndarray, np.ndarray],
              log: Callable[[str], None] = lambda s: None) -> CompressedTransfer:
     """Fit the compressed transfer matrices of a store (module doc); ``skinning = (parents, joints, weights)``."""
-    from prt_torch.reduce.ncut import cluster_segments
-    from prt_torch.reduce.quantize import quantize16
+    from prt_torch.s001.ncut import cluster_segments
+    from prt_torch.s001.quantize import quantize16
 
     check(ARRAY in ds, f"{ds.path}: no {ARRAY} array (bake with bake.transfer_matrix: true for train.s001)")
     check(scfg.clip in ds.clip_names, f"train.s001.clip {scfg.clip!r} is not a clip of {ds.path} "
@@ -209,7 +209,7 @@ def fit_s001(ds: BakedDataset, scfg: S001Config, skinning: tuple[np.ndarray, np.
     seg = np.asarray(ds.cluster, np.int64)
     n_seg = int(seg.max()) + 1
     v = len(seg)
-    from prt_torch.models.posespace import segment_rotations
+    from prt_torch.s001.posespace import segment_rotations
     from prt_torch.sh.rotation import sh_rotation
 
     c = int(ds.array(ARRAY).shape[2])
@@ -237,7 +237,7 @@ def fit_s001(ds: BakedDataset, scfg: S001Config, skinning: tuple[np.ndarray, np.
         f"(normalized cut, {t_ncut:.1f} s)")
     nb = scfg.n_basis
     if scfg.cpca == "revised":
-        from prt_torch.reduce.rcpca import RevisedCPCA
+        from prt_torch.s001.rcpca import RevisedCPCA
 
         rc = RevisedCPCA(n_basis=nb, m_cpf=scfg.m_cpf, seed=scfg.seed, cache_bytes=budget // 2)
         rc.fit(stream, seg, groups)

@@ -1,7 +1,7 @@
 """``prt play RUN --renderer s001|posespace``: the player with seed 001's run time instead of the ONNX graphs.
 
 :class:`S001RunPlayer` is a :class:`~prt_torch.player.player.Player` (same posing, camera, tone map, mesh renderer,
-video/PNG writers and timings) whose radiance per frame comes from :class:`prt_torch.player.s001.S001Player`: the
+video/PNG writers and timings) whose radiance per frame comes from :class:`prt_torch.s001.player.S001Player`: the
 run's compressed transfer matrices (``s001.npz``, ``prt train`` with ``train.s001``) interpolated at the frame's pose
 features (``s001``: eq. 7 per segment; ``posespace``: Table 3's global baseline) and shaded in eq. 9's order with
 the player's lighting (``--env`` or the procedural sky, SH of the matrices' order, rotated by ``--light-angle``) and
@@ -44,7 +44,7 @@ class S001RunPlayer(Player):
         run_dir: a run with ``s001.npz`` and its dataset's vertex clusters (exported or not).
         env: HDR environment map, or ``None`` for the procedural sky + sun.
         brdf: a catalogue BRDF name (``lambert``, ``phong``, ``blinn``, ``ggx``, ``ward``); default the first.
-        scheme: ``"s001"`` or ``"posespace"`` (:class:`~prt_torch.player.s001.S001Player`).
+        scheme: ``"s001"`` or ``"posespace"`` (:class:`~prt_torch.s001.player.S001Player`).
         window_size: render size in pixels.
     """
 
@@ -53,10 +53,10 @@ class S001RunPlayer(Player):
                  **_: Any) -> None:
         from prt_torch.brdf.matrix import brdf_matrix, factor
         from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
-        from prt_torch.models.posespace import CompressedTransfer
+        from prt_torch.s001.posespace import CompressedTransfer
         from prt_torch.player.lighting import load_lighting
         from prt_torch.player.posing import Poser
-        from prt_torch.player.s001 import S001Player
+        from prt_torch.s001.player import S001Player
         from prt_torch.rundir import RunDir
 
         run = RunDir.of(run_dir)

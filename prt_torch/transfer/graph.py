@@ -4,7 +4,7 @@ Graph (:func:`transfer_graph`, written by :func:`write_transfer_graph`): inputs 
 SH lighting ``light (n_light, 3)``; outputs ``transfer (B, V, C6)`` and its unit-albedo shading ``radiance = L . t
 (B, V, 3)`` (:func:`prt_torch.shade.diffuse.shade_diffuse_prt`, the first ``min(C6, n_light)`` coefficients), and,
 when the run learned the subsurface array too, ``subsurface (B, V, C6)`` and ``subsurface_radiance = L . t_sss``.
-The models are the run's ``models/<array>_<kind>.pt`` (:mod:`prt_torch.fit.transfer`) as exported
+The models are the run's ``models/<array>_<kind>.pt`` (:mod:`prt_torch.transfer.fit`) as exported
 (:class:`prt_torch.export.graphs.VisibilityGraph`, float32). ``prt export`` ships it as the run's transfer graph
 (:meth:`prt_torch.rundir.RunDir.transfer_graph_path`, parity-checked against torch, in ``export.json``
 ``transfer``); ``prt compare``'s ``learned_transfer`` runs that file, or writes the same graph into its compare
@@ -13,7 +13,7 @@ only the radiance outputs. The dot product is in the graph: against ``transfer``
 1.13x faster per call (order 4, 1430 vertices, transfer + subsurface, one thread): the ``(V, C6)`` arrays never
 leave onnxruntime.
 
-Shading rule: :func:`prt_torch.export.transfer_shading.transfer_shading` (one function for compare and the
+Shading rule: :func:`prt_torch.transfer.shading.transfer_shading` (one function for compare and the
 player).
 
 torch only inside the graph-building functions.
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import check
-from prt_torch.export.transfer_shading import ARRAYS, graph_outputs
+from prt_torch.transfer.shading import ARRAYS, graph_outputs
 
 #: bumped when the graph's inputs / outputs change (part of ``prt export``'s stage key)
 TRANSFER_GRAPH_VERSION = 1

@@ -1,18 +1,18 @@
 """``s001`` and ``posespace``: seed 001's compressed transfer matrices interpolated from sampled poses (sec. 5).
 
 Radiance methods on runs trained with ``train.s001`` (``s001.npz``) whose store has ``transfer_matrix``.
-Per frame, :class:`prt_torch.player.s001.S001Player` (numpy) interpolates the 16-bit PCA coefficients (eq. 7,
+Per frame, :class:`prt_torch.s001.player.S001Player` (numpy) interpolates the 16-bit PCA coefficients (eq. 7,
 ``s001``: per segment from the normalized-cut group of the nearest sampled pose under the bone-weighted distance;
 ``posespace``: the same compressed data from the nearest sampled poses of the whole body, Table 3's baseline) and
 shades in eq. 9's order with the compared lighting's SH (``lighting.sh``) and each compared analytic BRDF as
 ``B = brdf_matrix(brdf)``, ``H, G = factor(B, 4)`` (:mod:`prt_torch.brdf.matrix`), times the BRDF's tint: the same
-rule as :func:`prt_torch.shade.transfer_matrix.shade_matrix` (checked against it in tests/compare/test_s001_method.py).
+rule as :func:`prt_torch.s001.shading.shade_matrix` (checked against it in tests/compare/test_s001_method.py).
 
 What the harness scores: radiance against ``sh_truth`` shaded on the shipping path (shadowed direct light only),
 so the transfer matrices' interreflection bounces (``bake.matrix_bounces``) count as error there. The method's own
 ``info()`` therefore also scores it against the BAKED transfer matrices of the compared dataset rows (Table 3):
 ``transfer_rel_err`` (Frobenius, pooled over frames) and ``matrix_radiance_rel_rmse`` (both shaded by
-:func:`~prt_torch.shade.transfer_matrix.shade_matrix` with the same lighting and BRDFs), computed during the
+:func:`~prt_torch.s001.shading.shade_matrix` with the same lighting and BRDFs), computed during the
 harness's untimed warm-up call. ``compression_ratio`` = raw float32 transfer matrices of the sampled poses /
 the bytes of ``s001.npz``'s arrays (``bytes()``).
 """
@@ -45,8 +45,8 @@ class S001(MethodBase):
         return run.run.s001.is_file() and "transfer_matrix" in run.dataset
 
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
-        from prt_torch.models.posespace import CompressedTransfer
-        from prt_torch.player.s001 import S001Player
+        from prt_torch.s001.posespace import CompressedTransfer
+        from prt_torch.s001.player import S001Player
 
         self.data = CompressedTransfer.load(run.run.s001)
         check(self.data.n_vertices == run.n_vertices,
@@ -77,7 +77,7 @@ class S001(MethodBase):
     def _truth_scores(self, light: np.ndarray, eye: np.ndarray) -> dict[str, Any]:
         """Errors against the baked transfer matrices of the compared dataset rows (module doc)."""
         from prt_torch.eval.shipping import evenly_spaced
-        from prt_torch.shade.transfer_matrix import shade_matrix
+        from prt_torch.s001.shading import shade_matrix
 
         fs = self.frames
         have = np.flatnonzero(fs.rows >= 0)

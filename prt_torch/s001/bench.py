@@ -3,7 +3,7 @@
 On the run's held-out frames (the baked pose features, positions and vertex frames, batch 1), interleaved frame by
 frame (the machine is shared: only side-by-side ratios and medians mean anything):
 
-* ``s001``: :class:`prt_torch.player.s001.S001Player` (numpy) radiance for ONE BRDF (Lambert, the factored BRDF
+* ``s001``: :class:`prt_torch.s001.player.S001Player` (numpy) radiance for ONE BRDF (Lambert, the factored BRDF
   matrix, :mod:`prt_torch.brdf.matrix`) in eq. 9's order, with its parts timed separately on the same frames:
   ``s001_weights`` (per-segment k-d tree + NRBF + eq. 7 coefficients), ``s001_rotations`` (segment rotations and
   the per-segment lighting);
@@ -43,9 +43,9 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.compare.run import heldout_frames, load_compare_run
     from prt_torch.errors import check
     from prt_torch.eval.shipping import player_camera
-    from prt_torch.models.posespace import CompressedTransfer
+    from prt_torch.s001.posespace import CompressedTransfer
     from prt_torch.player.lighting import load_lighting
-    from prt_torch.player.s001 import S001Player
+    from prt_torch.s001.player import S001Player
 
     check(1 <= args.frames <= limits.MAX_FRAMES, f"--frames must be in 1..{limits.MAX_FRAMES}, got {args.frames}")
     V.input_dir(args.run, "run")

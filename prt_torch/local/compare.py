@@ -1,9 +1,9 @@
 """``learned_local_linear``, ``learned_local_mlp``: the run's local visibility models (``train.local``,
-:mod:`prt_torch.models.local`) on the player's path.
+:mod:`prt_torch.local.models`) on the player's path.
 
-Per frame (timed): the neighbour offsets (numba) (:class:`prt_torch.deform.local_soa.LocalOffsetsSoA`) from the
+Per frame (timed): the neighbour offsets (numba) (:class:`prt_torch.local.soa.LocalOffsetsSoA`) from the
 positions and the compared frames, then the network in onnxruntime: the shipped ``local.onnx`` when it is this
-kind's current model (``export.json`` ``local``), else the kind's :class:`~prt_torch.models.local.LocalHead` exported
+kind's current model (``export.json`` ``local``), else the kind's :class:`~prt_torch.local.models.LocalHead` exported
 into the run's compare directory. The frames are the compared frames every method gets (the player computes them
 for the shading anyway), so the time is what the local model adds, as the positions-in graphs' time is for the
 per-cluster models. ``bytes()``: the graph's initializers plus the neighbour indices.
@@ -17,8 +17,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, register
-from prt_torch.deform.local_soa import offsets_inputs
-from prt_torch.export.local_data import neighbour_dtype
+from prt_torch.local.soa import offsets_inputs
+from prt_torch.local.data import neighbour_dtype
 
 
 class LearnedLocal(MethodBase):
@@ -32,7 +32,7 @@ class LearnedLocal(MethodBase):
         return run.run.local_model_path(cls.kind).is_file()
 
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
-        from prt_torch.deform.local_soa import LocalOffsetsSoA
+        from prt_torch.local.soa import LocalOffsetsSoA
         from prt_torch.export.onnx_file import initializer_bytes
         from prt_torch.rundir import file_sha256
         from prt_torch.runtime.session import OrtGraph
@@ -41,7 +41,7 @@ class LearnedLocal(MethodBase):
         shipped = (run.export_meta or {}).get("local")
         if isinstance(shipped, dict) and shipped.get("kind") == self.kind and run.run.local_graph_path.is_file() \
                 and shipped.get("model_sha256") == file_sha256(mpath):
-            from prt_torch.export.local_data import load_neighbours
+            from prt_torch.local.data import load_neighbours
 
             path, self.source = run.run.local_graph_path, "shipped"
             nb = load_neighbours(run.run)
@@ -56,8 +56,8 @@ class LearnedLocal(MethodBase):
         self.runtime = f"numba offsets + onnxruntime ({run.run.relative(path)}, {self.source})"
 
     def _export(self, run: CompareRun, mpath: Path) -> tuple[Path, np.ndarray]:
-        from prt_torch.export.local_graph import export_head
-        from prt_torch.models.local import load_local
+        from prt_torch.local.graph import export_head
+        from prt_torch.local.models import load_local
 
         model = load_local(mpath)
         nb = model.neighbours.numpy().astype(np.int32)

@@ -1,17 +1,17 @@
-"""The shipped local visibility network of a deformable run (``train.local.default``; :mod:`prt_torch.models.local`).
+"""The shipped local visibility network of a deformable run (``train.local.default``; :mod:`prt_torch.local.models`).
 
 ``prt export`` writes, when the run's training config names a local kind to ship:
 
 * ``local.npz`` (:attr:`RunDir.local_data_path`): ``neighbours (V, S)``, the model's neighbour indices (int16 up to
   32,767 vertices, else int32);
 * ``local.onnx`` (:attr:`RunDir.local_graph_path`): the network only, ``offsets (B, 3 S, V) -> visibility
-  (B, V, C)`` (:class:`prt_torch.models.local.LocalHead`). The player computes ``offsets`` with the run-time twin
-  :class:`prt_torch.deform.local_soa.LocalOffsetsSoA` from the positions and the frames it computes anyway
+  (B, V, C)`` (:class:`prt_torch.local.models.LocalHead`). The player computes ``offsets`` with the run-time twin
+  :class:`prt_torch.local.soa.LocalOffsetsSoA` from the positions and the frames it computes anyway
   (numba; onnxruntime's Gather of the neighbour coordinates is ~10x slower); its per-vertex tables
   (the first-layer term and the intercepts, most of its bytes) are stored in float16 when the fit put them on the
   float16 grid (:func:`table_lowering`), exactly.
 
-Checked at export: the run-time twin against the torch rule :func:`prt_torch.models.local.local_offsets` on held-out
+Checked at export: the run-time twin against the torch rule :func:`prt_torch.local.models.local_offsets` on held-out
 frames, and onnxruntime against torch (parity).
 """
 
@@ -46,8 +46,8 @@ FP16_TABLES = r"(^|\.)(b0|mean)$"
 
 
 def table_lowering(head: Any) -> dict[str, str | None]:
-    """``export_onnx`` keywords of a :class:`~prt_torch.models.local.LocalHead`: its per-vertex tables in float16
-    when every value is a float16 value (fits round them: :func:`prt_torch.fit.local.to_fp16_grid`), else none
+    """``export_onnx`` keywords of a :class:`~prt_torch.local.models.LocalHead`: its per-vertex tables in float16
+    when every value is a float16 value (fits round them: :func:`prt_torch.local.fit.to_fp16_grid`), else none
     (parity would break)."""
     import torch
 
@@ -58,7 +58,7 @@ def table_lowering(head: Any) -> dict[str, str | None]:
 
 def export_head(head: Any, offsets: np.ndarray, path: Any, metadata: dict[str, Any], opset: int = 17,
                 exporter: str = "torchscript") -> bool:
-    """Export a :class:`~prt_torch.models.local.LocalHead` to ``path`` (``offsets (B, 3 S, V) -> visibility``, batch
+    """Export a :class:`~prt_torch.local.models.LocalHead` to ``path`` (``offsets (B, 3 S, V) -> visibility``, batch
     axis dynamic, ``offsets`` the example input), its per-vertex tables in float16 when they are exact
     (:func:`table_lowering`). Returns whether they are."""
     import torch
@@ -80,11 +80,11 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
     ``held`` (``positions (F, V, 3)``, ``frames (F, V, 3, 3)``). Returns the ``export.json`` ``local`` entry."""
     import torch
 
-    from prt_torch.deform.local_soa import LocalOffsetsSoA, offsets_inputs
-    from prt_torch.export.local_data import write_neighbours
+    from prt_torch.local.soa import LocalOffsetsSoA, offsets_inputs
+    from prt_torch.local.data import write_neighbours
     from prt_torch.export.onnx_file import initializer_bytes
     from prt_torch.export.parity import check_parity
-    from prt_torch.models.local import load_local, local_offsets
+    from prt_torch.local.models import load_local, local_offsets
     from prt_torch.rundir import file_sha256
 
     mpath = run.local_model_path(kind)

@@ -1,6 +1,6 @@
 """Seed 001 eq. 5 per vertex: ``Gamma = V^T B T L`` with the factored BRDF matrix ``B ~ H G^T``.
 
-Per vertex ``v`` with transfer matrix ``T_v (C, C)`` (:mod:`prt_torch.bake.transfer_matrix`: global SH
+Per vertex ``v`` with transfer matrix ``T_v (C, C)`` (:mod:`prt_torch.s001.bake`: global SH
 lighting -> local SH incident radiance), frame ``F_v`` (rows ``t, b, n``) and world view direction ``e_v``
 (unit, toward the viewer)::
 
