@@ -9,7 +9,7 @@ from prt_torch.conventions import BelowHorizon
 
 
 class SubsurfaceConfig(BaseModel):
-    """Dipole subsurface material (Jensen et al. 2001; :mod:`prt_torch.transfer.subsurface`): coefficients in 1/mm,
+    """Dipole subsurface material (Jensen et al. 2001; :mod:`prt_torch.bake.subsurface`): coefficients in 1/mm,
     ``scale`` mm per world unit; defaults: Jensen's skin1, green channel, a character in metres."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)

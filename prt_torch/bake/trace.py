@@ -13,7 +13,7 @@ import numpy as np
 
 from prt_torch.bake.directions import hemisphere_set, rotated_frames, vertex_angles, world_directions
 from prt_torch.bake.embree import RayScene
-from prt_torch.transfer.bake import bounce_operator, direct_transfer, gather_entries, interreflect
+from prt_torch.bake.transfer import bounce_operator, direct_transfer, gather_entries, interreflect
 from prt_torch.bake.visibility import project_visibility, projection_table
 from prt_torch.conventions import BELOW_HORIZON
 from prt_torch.errors import PrtError

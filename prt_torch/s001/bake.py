@@ -19,13 +19,13 @@ transferred incident radiance ``l_local = T @ L`` (local-frame SH, ``C``)::
   sh_rotation`; an unoccluded vertex's ``T`` is ``D(F)`` itself).
 * **Interreflection** (``matrix_bounces`` = ``B``): every occluded ray gathers the diffuse exit radiance of the
   surface it hits, ``rho (L . t_hit)``, with ``t`` the global diffuse transfer of order ``n`` with ``B - 1``
-  bounces (:mod:`prt_torch.transfer.bake`: direct ``t0`` plus ``B - 1`` applications of the sparse gather
+  bounces (:mod:`prt_torch.bake.transfer`: direct ``t0`` plus ``B - 1`` applications of the sparse gather
   operator ``M`` built from the same hits), interpolated with the hit's barycentrics. ``T`` then holds ``B``
   bounces: the light that reached the hit point after ``B - 1`` bounces, reflected once more.
   For a Lambertian receiver, the ``(l=1, m=0)`` row of ``T`` times ``sqrt(4 pi / 3) / pi`` is exactly the
   bake's diffuse transfer with ``B`` bounces (``"zero"``): ``y_10 sqrt(4 pi/3) / pi = cos / pi`` on the rays.
 * **Subsurface** (``bake.subsurface``): the subsurface exit radiance ``s . L`` (isotropic,
-  :mod:`prt_torch.transfer.subsurface`) enters ``T`` as the uniform incident radiance over the upper hemisphere
+  :mod:`prt_torch.bake.subsurface`) enters ``T`` as the uniform incident radiance over the upper hemisphere
   that a white Lambertian surface reflects as exactly ``s . L``: ``k = h / (c . h)`` with ``h`` the local SH
   of the upper-hemisphere indicator and ``c`` those of ``max(cos, 0) / pi`` (so ``c . k = 1`` and the
   Lambertian BRDF matrix, :func:`prt_torch.brdf.matrix.brdf_matrix`, gives ``y(wo)^T B k = 1``). A BRDF
@@ -44,7 +44,7 @@ import numpy as np
 
 from prt_torch.bake.directions import hemisphere_set, rotated_frames, world_directions
 from prt_torch.bake.trace import FrameResult, RayHits, RaySet, check_below_horizon
-from prt_torch.transfer.bake import bounce_operator, gather_entries, interreflect, occlusion_transfer
+from prt_torch.bake.transfer import bounce_operator, gather_entries, interreflect, occlusion_transfer
 from prt_torch.bake.visibility import projection_table, rotate_sh_z
 from prt_torch.errors import PrtError
 from prt_torch.sh.basis import check_order, sh_basis
@@ -102,7 +102,7 @@ def hit_diffuse_transfer(frames: np.ndarray, hits: RayHits, rays: RaySet, faces:
     """Global diffuse transfer ``t0 + M t0 + ... + M^bounces t0`` of order ``order`` from a frame's ray hits.
 
     The same estimate as :func:`prt_torch.bake.trace.trace_frame`'s transfer (same rays, same gather
-    operator, :mod:`prt_torch.transfer.bake`), at the matrix order. ``(V, C)`` float32.
+    operator, :mod:`prt_torch.bake.transfer`), at the matrix order. ``(V, C)`` float32.
     """
     V = frames.shape[0]
     R = rays.n_rays
@@ -201,7 +201,7 @@ def frame_results(params: dict[str, Any], positions: np.ndarray, frames: np.ndar
     Returns:
         ``{name: array}`` with ``subsurface (V, C6)`` and/or ``transfer_matrix (V, C, C)`` float32.
     """
-    from prt_torch.transfer.subsurface import DipoleParams, frame_subsurface
+    from prt_torch.bake.subsurface import DipoleParams, frame_subsurface
 
     out: dict[str, np.ndarray] = {}
     sss = params.get("subsurface")

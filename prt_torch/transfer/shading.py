@@ -6,7 +6,7 @@
 ``albedo`` is the BRDF's RPO tint, ``L`` the world-frame SH lighting, ``t`` the (learned or baked) diffuse transfer
 with its interreflection bounces, ``t_sss`` the subsurface exit-radiance transfer (absent: no second term). The
 bake's ``subsurface`` array is already the exit radiance per unit incident radiance of its dipole material
-(:mod:`prt_torch.transfer.subsurface`: the reduced albedo ``a'``, the Fresnel transmittances ``(1 - F_dr)^2`` and the
+(:mod:`prt_torch.bake.subsurface`: the reduced albedo ``a'``, the Fresnel transmittances ``(1 - F_dr)^2`` and the
 dipole reflectance of ``bake.subsurface``'s ``sigma_a``, ``sigma_s_prime``, ``eta`` are in it, for ONE scalar
 channel, by default Jensen 2001's skin1 green), so its magnitude is not scaled again: the tint only gives that channel
 the material's colour (the albedo's chromaticity, mean 1: a grey material keeps the baked magnitude in every

@@ -11,7 +11,7 @@ import sympy
 from scipy.integrate import quad
 from scipy.spatial.distance import cdist
 
-from prt_torch.transfer.subsurface import (
+from prt_torch.bake.subsurface import (
     DipoleParams,
     dipole_disk,
     dipole_kernel,

@@ -48,7 +48,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from prt_torch.bake.trace import RayHits, RaySet
-from prt_torch.transfer.bake import occlusion_transfer
+from prt_torch.bake.transfer import occlusion_transfer
 from prt_torch.errors import PrtError, check
 from prt_torch.shapes import check_shape
 
