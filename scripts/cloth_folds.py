@@ -10,7 +10,7 @@ import argparse
 
 import numpy as np
 
-from prt_torch.eval.shipping import abs_diff_image, image_strip, write_png
+from prt_torch.scoring.shading import abs_diff_image, image_strip, write_png
 from prt_torch.player.deformable import DeformablePlayer
 from prt_torch.rundir import RunDir
 

@@ -26,7 +26,7 @@ def test_below_horizon_one_definition() -> None:
 
 
 def test_psnr_one_rule() -> None:
-    from prt_torch.eval.shipping import ImageStats, RadianceStats
+    from prt_torch.scoring.shading import ImageStats, RadianceStats
     from prt_torch.metrics import psnr, psnr_from_mse
 
     assert psnr_from_mse(0.0) == float("inf") and psnr_from_mse(0.01) == pytest.approx(20.0)
@@ -42,7 +42,7 @@ def test_psnr_one_rule() -> None:
 
 
 def test_evenly_spaced_indices() -> None:
-    from prt_torch.eval.shipping import evenly_spaced
+    from prt_torch.scoring.shading import evenly_spaced
     from prt_torch.metrics import evenly_spaced_indices
 
     assert evenly_spaced_indices(10, 4).tolist() == [0, 3, 6, 9]

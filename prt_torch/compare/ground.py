@@ -35,7 +35,7 @@ import numpy as np
 from prt_torch import metrics as M
 from prt_torch.bake.store import recorded_fps
 from prt_torch.errors import PrtError, check
-from prt_torch.eval.shipping import (
+from prt_torch.scoring.shading import (
     DIFFUSE,
     Camera,
     ImageRenderer,

@@ -21,7 +21,7 @@ from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase,
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
 from prt_torch.errors import PrtError, check
 from prt_torch.eval.evaluate import resolve_dataset
-from prt_torch.eval.shipping import (
+from prt_torch.scoring.shading import (
     DIFFUSE,
     GLOSSY,
     ImageRenderer,
@@ -341,7 +341,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
 
 
 def _sse_between(fi: Any, a: str, b: str) -> tuple[float, int]:
-    from prt_torch.eval.shipping import image_sse
+    from prt_torch.scoring.shading import image_sse
 
     return image_sse(fi.images[a], fi.images[b], fi.mask)
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from prt_torch.eval.evaluate import UNSHADOWED, Evaluation
 from prt_torch.eval.plots import plot_error_vs_alpha, plot_error_vs_variance, plot_per_frame_error, plot_spectra
-from prt_torch.eval.shipping import abs_diff_image, image_strip, write_png
+from prt_torch.scoring.shading import abs_diff_image, image_strip, write_png
 from prt_torch.fit.ridge import ridge_path
 from prt_torch.io import atomic_write_json, atomic_write_text
 from prt_torch.metrics import per_frame_rel_err, vis_rel_err

@@ -12,7 +12,7 @@ terrain) it animates ``--frames`` frames and, per frame, on the same triangle me
 Both timings are single-threaded by default (``--threads 1``; the bake's Embree tracer is single-threaded
 per call). Scores: visibility relative SH error vs truth (:func:`prt_torch.metrics.vis_rel_err`, pooled over
 frames), vertex radiance relative RMSE and image PSNR (diffuse = ``lambert``, glossy = ``phong``) on the
-shipping path (:mod:`prt_torch.eval.shipping`: the shipped RPOs through ``shade_rpo``, the player's sky
+shipping path (:mod:`prt_torch.scoring.shading`: the shipped RPOs through ``shade_rpo``, the player's sky
 lighting on the ``lobes`` path, the player's renderer and tone map fixed from the truth, PSNR over the
 pixels the mesh covers). The camera is the player's orbit rule (:func:`prt_torch.player.player.camera_eye`)
 at a higher elevation (:data:`CAMERA_ELEVATION`) and closer (:data:`CAMERA_RADIUS` of the diagonal) so the
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch import limits
     from prt_torch.bake.trace import RaySet
     from prt_torch.errors import check
-    from prt_torch.eval import shipping as sp
+    from prt_torch.scoring import shading as sp
     from prt_torch.heightfield.horizon import check_wedges
     from prt_torch.heightfield.surface import KINDS, check_grid_size, grid_faces, make_frame, make_generator
     from prt_torch.heightfield.truth import truth_visibility

@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.compare.methods import METHODS
     from prt_torch.compare.run import heldout_frames, load_compare_run
     from prt_torch.errors import check
-    from prt_torch.eval.shipping import player_camera
+    from prt_torch.scoring.shading import player_camera
     from prt_torch.s001.posespace import CompressedTransfer
     from prt_torch.player.lighting import load_lighting
     from prt_torch.s001.player import S001Player

@@ -76,7 +76,7 @@ class S001(MethodBase):
 
     def _truth_scores(self, light: np.ndarray, eye: np.ndarray) -> dict[str, Any]:
         """Errors against the baked transfer matrices of the compared dataset rows (module doc)."""
-        from prt_torch.eval.shipping import evenly_spaced
+        from prt_torch.scoring.shading import evenly_spaced
         from prt_torch.s001.shading import shade_matrix
 
         fs = self.frames

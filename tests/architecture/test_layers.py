@@ -36,6 +36,7 @@ RANKS: dict[str, int] = {
     "fit": 7,
     "export": 8,
     "player": 9,
+    "scoring": 9.5,  # the shipping-path scoring kit: uses player, used by eval, compare and web
     "eval": 10, "compare": 10,
     **{pkg: 11 for pkg in ("s001", "transfer", "local", "shexp", "vct", "heightfield", "cloth")},
     "web": 12, "commands": 12, "cli": 12, "__main__": 13,

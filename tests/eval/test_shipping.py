@@ -1,4 +1,4 @@
-"""The shipping-path shading and image rule of ``prt_torch.eval.shipping`` against independent references."""
+"""The shipping-path shading and image rule of ``prt_torch.scoring.shading`` against independent references."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from prt_torch.brdf.rpo import builtin_rpo
-from prt_torch.eval.shipping import (
+from prt_torch.scoring.shading import (
     ImageRenderer,
     ShippingShader,
     image_psnr,

@@ -50,10 +50,10 @@ def test_frames_equal_the_frame_operator(player, deformable_run) -> None:
 
 
 def test_played_radiance_equals_the_shipping_shader(player) -> None:
-    """A played frame's radiance == prt_torch.eval.shipping's RPO shading (torch, the compare yardstick) of the same
+    """A played frame's radiance == prt_torch.scoring.shading's RPO shading (torch, the compare yardstick) of the same
     visibility, frames, camera, lobes and RPO."""
     from prt_torch.brdf.rpo import RPO
-    from prt_torch.eval.shipping import ShippingShader
+    from prt_torch.scoring.shading import ShippingShader
 
     pos = heldout_positions()[7:9]
     state, rad = player.compute_positions(pos)
