@@ -78,7 +78,7 @@ def transfer_error(pred: Any, truth: Any) -> np.ndarray:
 
 def psnr_from_mse(mse: float, peak: float = 1.0) -> float:
     """``10 log10(peak^2 / mse)`` in dB (``peak`` at least 1e-15), ``inf`` for ``mse <= 0``: the one PSNR rule
-    (:func:`psnr`, pooled radiance and image errors of :mod:`prt_torch.scoring.shading`)."""
+    (:func:`psnr`, pooled radiance and image errors of :mod:`prt_torch.scoring`)."""
     if mse <= 0:
         return float("inf")
     return float(10 * np.log10(max(peak, 1e-15) ** 2 / mse))

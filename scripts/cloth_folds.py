@@ -9,10 +9,10 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-
-from prt_torch.scoring.shading import abs_diff_image, image_strip, write_png
 from prt_torch.player.deformable import DeformablePlayer
+
 from prt_torch.rundir import RunDir
+from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
 
 
 def main() -> None:

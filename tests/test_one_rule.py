@@ -26,8 +26,8 @@ def test_below_horizon_one_definition() -> None:
 
 
 def test_psnr_one_rule() -> None:
-    from prt_torch.scoring.shading import ImageStats, RadianceStats
     from prt_torch.metrics import psnr, psnr_from_mse
+    from prt_torch.scoring.statistics import ImageStats, RadianceStats
 
     assert psnr_from_mse(0.0) == float("inf") and psnr_from_mse(0.01) == pytest.approx(20.0)
     assert psnr_from_mse(0.01, 2.0) == pytest.approx(10 * np.log10(4 / 0.01))
@@ -42,8 +42,8 @@ def test_psnr_one_rule() -> None:
 
 
 def test_evenly_spaced_indices() -> None:
-    from prt_torch.scoring.shading import evenly_spaced
     from prt_torch.metrics import evenly_spaced_indices
+    from prt_torch.scoring.sampling import evenly_spaced
 
     assert evenly_spaced_indices(10, 4).tolist() == [0, 3, 6, 9]
     assert evenly_spaced_indices(5, 5).tolist() == list(range(5))
@@ -52,8 +52,8 @@ def test_evenly_spaced_indices() -> None:
 
 
 def test_recorded_config_and_deformable(synthetic_dataset: Path, tmp_path: Path) -> None:
-    from prt_torch.cloth.bake import is_deformable
     from prt_torch.bake.store import BakedDataset, recorded_config
+    from prt_torch.cloth.bake import is_deformable
     from prt_torch.cloth.export import is_deformable as run_is_deformable
     from prt_torch.rundir import RunDir
 

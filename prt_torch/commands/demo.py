@@ -274,11 +274,12 @@ def scene_row(run: Any, ds: Any, scene: Any, clip: str, row: int, fps: float, en
     """A third row for the comparison PNG ``out`` at dataset ``row`` (a frame of ``clip``): the scene rendered
     with whole-scene Embree truth | the player's composition (model x ground half-space, SHEXP floor) | 4x
     |difference|, one tone map from the truth. Returns that frame's figures."""
-    from prt_torch.scoring.shading import abs_diff_image, image_psnr
     from prt_torch.player.scene import SceneFrame, ScenePlayer
     from prt_torch.player.video import write_png
     from prt_torch.scene.scene import pose_actor
     from prt_torch.scene.truth import GROUND_BELOW_HORIZON, GROUND_TRUTH_RAYS, SceneTracer
+    from prt_torch.scoring.statistics import image_psnr
+    from prt_torch.scoring.strips import abs_diff_image
 
     frame = int(ds.frame_index[row])
     sp = ScenePlayer(run, scene=scene, clip=clip, fps=fps, env=env, brdf=brdf, window_size=hw)
@@ -299,7 +300,7 @@ def scene_row(run: Any, ds: Any, scene: Any, clip: str, row: int, fps: float, en
                            [v[None] for v in tv[:-1]], sp.shade_ground(tv[-1]), tv[-1])
         img_t = sp.render(truth)  # fixes the one tone map from the truth
         img_m = sp.render(model)
-        from prt_torch.scoring.shading import ImageRenderer
+        from prt_torch.scoring.images import ImageRenderer
 
         bg = np.round(np.asarray(ImageRenderer.BACKGROUND) * 255.0)
         mask = np.abs(img_t.astype(np.float64) - bg).max(-1) > 1.0  # the scene's pixels (not the background)

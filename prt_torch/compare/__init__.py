@@ -4,7 +4,7 @@ Frames: the dataset's done held-out frames (their baked positions and frames), o
 the bake's code (``--clip``); ``--frames`` caps either (evenly spaced). Methods (:mod:`prt_torch.compare.methods`,
 a registry later methods plug into) run round-robin per frame, batch 1, in one process: ``ms_per_frame`` is
 the median of each method's own run-time path (onnxruntime for learned models, Embree ``trace_frame`` for
-the truth, the constant for ``unshadowed``). Every visibility is shaded by :mod:`prt_torch.scoring.shading`
+the truth, the constant for ``unshadowed``). Every visibility is shaded by :mod:`prt_torch.scoring`
 (the shipped RPOs ``lambert`` and ``phong``, the player's lighting through its ZH lobes, the player's camera,
 renderer and tone map). References:
 

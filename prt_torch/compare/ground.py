@@ -35,18 +35,6 @@ import numpy as np
 from prt_torch import metrics as M
 from prt_torch.bake.store import recorded_fps
 from prt_torch.errors import PrtError, check
-from prt_torch.scoring.shading import (
-    DIFFUSE,
-    Camera,
-    ImageRenderer,
-    ImageStats,
-    RadianceStats,
-    ShippingShader,
-    abs_diff_image,
-    evenly_spaced,
-    image_strip,
-    write_png,
-)
 from prt_torch.rundir import RunDir
 from prt_torch.scene.compose import Composer
 from prt_torch.scene.config import SceneConfig, run_scene
@@ -60,6 +48,12 @@ from prt_torch.scene.scene import (
     spheres_above,
 )
 from prt_torch.scene.truth import GROUND_BELOW_HORIZON, GROUND_TRUTH_RAYS, SceneTracer
+from prt_torch.scoring.images import Camera, ImageRenderer
+from prt_torch.scoring.rpos import DIFFUSE
+from prt_torch.scoring.sampling import evenly_spaced
+from prt_torch.scoring.shading import ShippingShader
+from prt_torch.scoring.statistics import ImageStats, RadianceStats
+from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
 
 
 def wants_scene(scene: SceneConfig | None) -> bool:

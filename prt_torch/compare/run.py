@@ -15,28 +15,20 @@ from typing import Any
 import numpy as np
 
 from prt_torch import metrics as M
-from prt_torch.cloth.bake import is_deformable
 from prt_torch.bake.store import recorded_config, recorded_fps
+from prt_torch.cloth.bake import is_deformable
 from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
 from prt_torch.errors import PrtError, check
 from prt_torch.eval.evaluate import resolve_dataset
-from prt_torch.scoring.shading import (
-    DIFFUSE,
-    GLOSSY,
-    ImageRenderer,
-    ImageStats,
-    RadianceStats,
-    ShippingShader,
-    abs_diff_image,
-    evenly_spaced,
-    image_strip,
-    player_camera,
-    shipping_rpos,
-    write_png,
-)
 from prt_torch.io import atomic_path, atomic_write_json, atomic_write_text
 from prt_torch.rundir import RunDir
+from prt_torch.scoring.images import ImageRenderer, player_camera
+from prt_torch.scoring.rpos import DIFFUSE, GLOSSY, shipping_rpos
+from prt_torch.scoring.sampling import evenly_spaced
+from prt_torch.scoring.shading import ShippingShader
+from prt_torch.scoring.statistics import ImageStats, RadianceStats
+from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
 
 TRUTH = "sh_truth"
 REFERENCE = "reference"
@@ -341,7 +333,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
 
 
 def _sse_between(fi: Any, a: str, b: str) -> tuple[float, int]:
-    from prt_torch.scoring.shading import image_sse
+    from prt_torch.scoring.statistics import image_sse
 
     return image_sse(fi.images[a], fi.images[b], fi.mask)
 

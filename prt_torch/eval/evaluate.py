@@ -6,7 +6,7 @@ clip), and the training split subsampled to ``train_frames`` (contiguous runs pe
 frame-to-frame jitter stays meaningful). Visibility errors are
 ``vis_rel_err`` (relative SH L2 = relative integrated squared error), ``transfer_err`` /
 ``transfer_rel_err`` (seed 000 section 6, hemisphere about the normal) and ``jitter``
-(per clip, :func:`prt_torch.metrics.jitter`). Shading uses :mod:`prt_torch.scoring.shading` (the RPO
+(per clip, :func:`prt_torch.metrics.jitter`). Shading uses :mod:`prt_torch.scoring` (the RPO
 catalogue ``prt export`` ships, ``shade_rpo``, the player's lighting by both lighting paths, the player's
 camera, renderer and tone map for images).
 
@@ -49,27 +49,15 @@ import numpy as np
 from prt_torch import metrics as M
 from prt_torch.bake.store import BakedDataset, SplitData, open_dataset
 from prt_torch.errors import PrtError, check, warn
-from prt_torch.scoring.shading import (
-    BRDFS,
-    DIFFUSE,
-    GLOSSY,
-    PATHS,
-    PLAYER_LIGHT,
-    FrameImages,
-    ImageRenderer,
-    ImageStats,
-    RadianceStats,
-    ShippingShader,
-    evenly_spaced,
-    player_camera,
-    shared_data_dir,
-    shipping_lights,
-    shipping_rpos,
-    unshadowed_visibility,
-)
 from prt_torch.models import KINDS
 from prt_torch.models.storage import storage_table
 from prt_torch.rundir import RunDir
+from prt_torch.scoring.images import FrameImages, ImageRenderer, player_camera
+from prt_torch.scoring.lighting import PATHS, PLAYER_LIGHT, shared_data_dir, shipping_lights, unshadowed_visibility
+from prt_torch.scoring.rpos import BRDFS, DIFFUSE, GLOSSY, shipping_rpos
+from prt_torch.scoring.sampling import evenly_spaced
+from prt_torch.scoring.shading import ShippingShader
+from prt_torch.scoring.statistics import ImageStats, RadianceStats
 
 UNSHADOWED = "unshadowed"
 #: default cap of the training split (it is only a sanity check of the fit)
@@ -160,7 +148,7 @@ def evaluate_run(run_dir: str | Path | RunDir, dataset: str | Path | None = None
         train_frames: cap of the training split (``None``: every frame).
         kinds: model kinds (default: every trained kind).
         shared_data: ``../shared/data`` for the env-map lights (default :func:`shared_data_dir`).
-        lights: restrict the lights (names of :func:`prt_torch.scoring.shading.shipping_lights`).
+        lights: restrict the lights (names of :func:`prt_torch.scoring.lighting.shipping_lights`).
         image_frames: frames rendered per split for image PSNR (default :data:`IMAGE_FRAMES`; 0 disables).
         log: a callable for one-line progress notes (e.g. ``console.log``).
         progress: show a rich progress bar while shading and rendering.

@@ -13,13 +13,13 @@ import numpy as np
 
 from prt_torch.eval.evaluate import UNSHADOWED, Evaluation
 from prt_torch.eval.plots import plot_error_vs_alpha, plot_error_vs_variance, plot_per_frame_error, plot_spectra
-from prt_torch.scoring.shading import abs_diff_image, image_strip, write_png
 from prt_torch.fit.ridge import ridge_path
 from prt_torch.io import atomic_write_json, atomic_write_text
 from prt_torch.metrics import per_frame_rel_err, vis_rel_err
 from prt_torch.models.storage import storage_markdown
 from prt_torch.reduce import PCA, ClusterPCA
 from prt_torch.rundir import RunDir
+from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
 
 VARIANCES = [0.8, 0.9, 0.95, 0.99, 0.999]
 METRICS = ["vis_rel_err", "transfer_rel_err", "psnr_diffuse", "psnr_glossy", "rmse_diffuse", "rmse_glossy", "jitter"]

@@ -12,7 +12,7 @@ terrain) it animates ``--frames`` frames and, per frame, on the same triangle me
 Both timings are single-threaded by default (``--threads 1``; the bake's Embree tracer is single-threaded
 per call). Scores: visibility relative SH error vs truth (:func:`prt_torch.metrics.vis_rel_err`, pooled over
 frames), vertex radiance relative RMSE and image PSNR (diffuse = ``lambert``, glossy = ``phong``) on the
-shipping path (:mod:`prt_torch.scoring.shading`: the shipped RPOs through ``shade_rpo``, the player's sky
+shipping path (:mod:`prt_torch.scoring`: the shipped RPOs through ``shade_rpo``, the player's sky
 lighting on the ``lobes`` path, the player's renderer and tone map fixed from the truth, PSNR over the
 pixels the mesh covers). The camera is the player's orbit rule (:func:`prt_torch.player.player.camera_eye`)
 at a higher elevation (:data:`CAMERA_ELEVATION`) and closer (:data:`CAMERA_RADIUS` of the diagonal) so the
@@ -97,13 +97,18 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch import limits
     from prt_torch.bake.trace import RaySet
     from prt_torch.errors import check
-    from prt_torch.scoring import shading as sp
     from prt_torch.heightfield.horizon import check_wedges
     from prt_torch.heightfield.surface import KINDS, check_grid_size, grid_faces, make_frame, make_generator
     from prt_torch.heightfield.truth import truth_visibility
     from prt_torch.heightfield.visibility import HeightFieldVisibility
     from prt_torch.io import atomic_write_json, atomic_write_text
     from prt_torch.player.player import camera_eye, camera_target
+    from prt_torch.scoring.images import Camera, ImageRenderer
+    from prt_torch.scoring.lighting import PLAYER_LIGHT, shipping_lights, unshadowed_visibility
+    from prt_torch.scoring.rpos import DIFFUSE, GLOSSY, shipping_rpos
+    from prt_torch.scoring.shading import ShippingShader
+    from prt_torch.scoring.statistics import ImageStats, RadianceStats
+    from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
     from prt_torch.sh.product import MAX_PRODUCT_ORDER
 
     sizes = []
@@ -124,15 +129,15 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(args.threads)
     order = args.order
-    lights = sp.shipping_lights(order, names=[sp.PLAYER_LIGHT])
-    rpos = sp.shipping_rpos(order)
-    unocc = sp.unshadowed_visibility(order, args.below_horizon)
+    lights = shipping_lights(order, names=[PLAYER_LIGHT])
+    rpos = shipping_rpos(order)
+    unocc = unshadowed_visibility(order, args.below_horizon)
     times = [0.25 + 0.6 * i for i in range(args.frames)]
     results: dict[str, Any] = {
         "settings": {"sizes": sizes, "kinds": kinds, "frames": args.frames, "times_s": times, "wedges": args.wedges,
                      "order": order, "rays": args.rays, "threads": args.threads, "repeat": args.repeat,
-                     "below_horizon": args.below_horizon, "lighting": sp.PLAYER_LIGHT, "lighting_path": "lobes",
-                     "brdfs": {"diffuse": sp.DIFFUSE, "glossy": sp.GLOSSY},
+                     "below_horizon": args.below_horizon, "lighting": PLAYER_LIGHT, "lighting_path": "lobes",
+                     "brdfs": {"diffuse": DIFFUSE, "glossy": GLOSSY},
                      "timed": "hf: HeightFieldVisibility(heights, frames) (pyramid, horizons, wedge sums, rotation "
                               "into the vertex frames), median of --repeat; embree: bake.trace.trace_frame (scene "
                               "build, rays, SH projection), once per frame; both get the same mesh and frames, whose "
@@ -151,17 +156,17 @@ def run(args: argparse.Namespace) -> int:
             rest = make_frame(np.zeros((n, n)), faces=faces).positions
             center, diag = camera_target(rest)
             eye = camera_eye(center, CAMERA_RADIUS * diag, elevation=CAMERA_ELEVATION)
-            camera = sp.Camera(np.asarray(eye, np.float64), np.asarray(center, np.float64))
-            shader = sp.ShippingShader(lights, rpos, camera.eye, paths=("lobes",))
+            camera = Camera(np.asarray(eye, np.float64), np.asarray(center, np.float64))
+            shader = ShippingShader(lights, rpos, camera.eye, paths=("lobes",))
             rays = RaySet.make(args.rays, order, n * n, 0, args.below_horizon)
             per_kind: dict[str, Any] = {}
-            with sp.ImageRenderer(rest, faces, camera) as renderer:
+            with ImageRenderer(rest, faces, camera) as renderer:
                 for kind in kinds:
                     gen = make_generator(kind, n)
                     num = {"hf": 0.0, "unshadowed": 0.0}
                     den = 0.0
-                    rad = {(m, b): sp.RadianceStats() for m in ("hf", "unshadowed") for b in rpos}
-                    img = {(m, b): sp.ImageStats() for m in ("hf", "unshadowed") for b in rpos}
+                    rad = {(m, b): RadianceStats() for m in ("hf", "unshadowed") for b in rpos}
+                    img = {(m, b): ImageStats() for m in ("hf", "unshadowed") for b in rpos}
                     hf_ms, embree_ms = [], []
                     for fi, t in enumerate(times):
                         frame = make_frame(gen(t), faces=faces)
@@ -185,20 +190,20 @@ def run(args: argparse.Namespace) -> int:
                                                     frame.frames[None], frame.positions[None])
                         strip_rows = []
                         for b in rpos:
-                            radiance = {m: shaded[(sp.PLAYER_LIGHT, b, "lobes")][m][0] for m, _ in METHODS}
+                            radiance = {m: shaded[(PLAYER_LIGHT, b, "lobes")][m][0] for m, _ in METHODS}
                             fimg = renderer.frame_images(frame.positions, radiance, "truth")
                             for m in ("hf", "unshadowed"):
                                 rad[(m, b)].add(radiance[m], radiance["truth"])
                                 img[(m, b)].add(*fimg.sse[m])
                             if fi == 0:
                                 ims = [fimg.images[m] for m, _ in METHODS]
-                                diffs = [None] + [sp.abs_diff_image(fimg.images[m], fimg.images["truth"])
+                                diffs = [None] + [abs_diff_image(fimg.images[m], fimg.images["truth"])
                                                   for m, _ in METHODS[1:]]
-                                strip_rows.append(sp.image_strip(
+                                strip_rows.append(image_strip(
                                     ims, [f"{lab} ({b})" for _, lab in METHODS], diffs,
                                     ["", "4 x |HF - truth|", "4 x |unshadowed - truth|"]))
                         if strip_rows:
-                            sp.write_png(out / f"{kind}_{n}.png", np.concatenate(strip_rows, axis=0))
+                            write_png(out / f"{kind}_{n}.png", np.concatenate(strip_rows, axis=0))
                     entry: dict[str, Any] = {
                         "vis_rel_err": float(np.sqrt(num["hf"] / den)),
                         "vis_rel_err_unshadowed": float(np.sqrt(num["unshadowed"] / den)),
@@ -209,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
                     }
                     for m in ("hf", "unshadowed"):
                         suffix = "" if m == "hf" else "_unshadowed"
-                        for key, b in (("diffuse", sp.DIFFUSE), ("glossy", sp.GLOSSY)):
+                        for key, b in (("diffuse", DIFFUSE), ("glossy", GLOSSY)):
                             entry[f"psnr_image_{key}{suffix}"] = img[(m, b)].psnr
                             entry[f"radiance_rel_rmse_{key}{suffix}"] = rad[(m, b)].rel_rmse
                     entry["speedup"] = entry["embree_ms_per_frame"] / entry["ms_per_frame"]

@@ -42,10 +42,10 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.compare.methods import METHODS
     from prt_torch.compare.run import heldout_frames, load_compare_run
     from prt_torch.errors import check
-    from prt_torch.scoring.shading import player_camera
-    from prt_torch.s001.posespace import CompressedTransfer
     from prt_torch.player.lighting import load_lighting
     from prt_torch.s001.player import S001Player
+    from prt_torch.s001.posespace import CompressedTransfer
+    from prt_torch.scoring.images import player_camera
 
     check(1 <= args.frames <= limits.MAX_FRAMES, f"--frames must be in 1..{limits.MAX_FRAMES}, got {args.frames}")
     V.input_dir(args.run, "run")

@@ -45,8 +45,8 @@ class S001(MethodBase):
         return run.run.s001.is_file() and "transfer_matrix" in run.dataset
 
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
-        from prt_torch.s001.posespace import CompressedTransfer
         from prt_torch.s001.player import S001Player
+        from prt_torch.s001.posespace import CompressedTransfer
 
         self.data = CompressedTransfer.load(run.run.s001)
         check(self.data.n_vertices == run.n_vertices,
@@ -76,8 +76,8 @@ class S001(MethodBase):
 
     def _truth_scores(self, light: np.ndarray, eye: np.ndarray) -> dict[str, Any]:
         """Errors against the baked transfer matrices of the compared dataset rows (module doc)."""
-        from prt_torch.scoring.shading import evenly_spaced
         from prt_torch.s001.shading import shade_matrix
+        from prt_torch.scoring.sampling import evenly_spaced
 
         fs = self.frames
         have = np.flatnonzero(fs.rows >= 0)

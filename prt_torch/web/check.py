@@ -3,7 +3,7 @@
 For each fixed case (clip, frame, light angle, BRDF; the procedural sky and the tone map ``prt web`` fixed
 for it) the page renders one frame (``window.prt.setState`` / ``render`` / ``readPixels``) and the Python player
 (:class:`prt_torch.player.Player`, same run, same float32 joint transforms, same camera) renders the same
-frame; image PSNR over the pixels the character fully covers (:mod:`prt_torch.scoring.shading`'s mask and PSNR
+frame; image PSNR over the pixels the character fully covers (:mod:`prt_torch.scoring`'s mask and PSNR
 rule); the difference image ``4 x |page - player|`` is written next to both frames. The visibility that
 onnxruntime-web computes for those poses is compared with onnxruntime's (relative L2; for int8 ``MatMulNBits``
 graphs with the float32 compute onnxruntime-web implements, see :func:`fp32_compute_session`). ``ms_per_frame`` is the
@@ -201,9 +201,11 @@ def check_site(site: str | os.PathLike[str], run: str | os.PathLike[str], chromi
     """Compare the page with the Python player (see the module docstring). Returns the result dict:
     ``psnr_vs_player`` (dB, the minimum over cases), ``console_errors``, ``ms_per_frame``, ``visibility_rel_err``,
     per-case ``frames``, ``ok``; images under ``artifacts`` when given."""
-    from prt_torch.scoring.shading import ImageRenderer, abs_diff_image, image_psnr, player_camera, write_png
     from prt_torch.player.player import Player
     from prt_torch.player.tonemap import ToneMap
+    from prt_torch.scoring.images import ImageRenderer, player_camera
+    from prt_torch.scoring.statistics import image_psnr
+    from prt_torch.scoring.strips import abs_diff_image, write_png
     from prt_torch.web.site import read_manifest, site_local
 
     m = read_manifest(site)

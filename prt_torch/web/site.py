@@ -16,7 +16,7 @@ The arrays are what :class:`prt_torch.player.posing.Poser` and the shading graph
 skin weights, bind / inverse-bind transforms (float64, as the numpy FK uses them), cluster labels / axes /
 bones (vertex frames), every clip's local joint transforms (float32, rows 0..2 of each 4x4: ``(F, J, 12)``),
 the RPO catalogue (``M (k, C, C)``, ``w (k, C)`` zero-padded to the graph's ``k``), the material's per-vertex
-base colour and UVs. Lighting presets are the player's own (:func:`prt_torch.scoring.shading.shipping_lights`:
+base colour and UVs. Lighting presets are the player's own (:func:`prt_torch.scoring.lighting.shipping_lights`:
 the procedural sky and the env maps of the shared data, 3 ZH lobes each) plus any ``--env`` files.
 """
 
@@ -107,8 +107,8 @@ def _lighting_entry(name: str, lighting: Any) -> dict[str, Any]:
 
 def site_lightings(order: int, env: list[str] | tuple[str, ...] = (), presets: bool = True) -> dict[str, Any]:
     """``{name: Lighting}``: the player's presets (sky, shared env maps) and the ``env`` files (named by stem)."""
-    from prt_torch.scoring.shading import shared_data_dir, shipping_lights
     from prt_torch.player.lighting import load_lighting
+    from prt_torch.scoring.lighting import shared_data_dir, shipping_lights
 
     out = dict(shipping_lights(order, shared_data_dir() if presets else None))
     for e in env:
@@ -127,7 +127,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         env: extra HDR environment maps offered as lighting presets.
         motions: motion files (BVH / glTF) retargeted onto the character (:func:`prt_torch.rig.retarget.retarget_file`,
             as ``prt play --motion`` does), offered as clips named ``motion:<stem>``.
-        env_presets: offer the shared data's env maps (:data:`prt_torch.scoring.shading.ENVMAPS`) besides the sky.
+        env_presets: offer the shared data's env maps (:data:`prt_torch.scoring.lighting.ENVMAPS`) besides the sky.
         material_rpo: add the character material's own RPO (Cook-Torrance with its roughness, cached) to the
             catalogue as ``material`` (building it needs scikit-learn, the ``export`` extra; skipped without it).
 

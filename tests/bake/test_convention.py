@@ -90,8 +90,8 @@ def test_unshadowed_follows_the_convention() -> None:
     """The player's and eval's unshadowed visibility: hemisphere for "zero" (and old data), constant for "one"."""
     from prt_torch.bake.store import below_horizon_of
     from prt_torch.compare.methods.unshadowed import Unshadowed
-    from prt_torch.scoring.shading import unshadowed_visibility
     from prt_torch.player.lighting import hemisphere_visibility
+    from prt_torch.scoring.lighting import unshadowed_visibility
 
     hemi = cap_sh(np.array([0.0, 0.0, 1.0]), 0.0, ORDER)
     np.testing.assert_allclose(hemisphere_visibility(ORDER), hemi, atol=1e-6)

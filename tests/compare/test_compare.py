@@ -84,7 +84,7 @@ def test_registry_accepts_a_new_method(small_run: Path) -> None:
         runtime = "numpy"
 
         def prepare(self, run: Any, frames: Any) -> None:
-            from prt_torch.scoring.shading import unshadowed_visibility
+            from prt_torch.scoring.lighting import unshadowed_visibility
 
             self.h = 0.5 * unshadowed_visibility(run.order)
             self.v = run.n_vertices

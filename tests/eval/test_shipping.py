@@ -1,4 +1,4 @@
-"""The shipping-path shading and image rule of ``prt_torch.scoring.shading`` against independent references."""
+"""The shipping-path shading and image rule of ``prt_torch.scoring`` against independent references."""
 
 from __future__ import annotations
 
@@ -7,14 +7,11 @@ import pytest
 import torch
 
 from prt_torch.brdf.rpo import builtin_rpo
-from prt_torch.scoring.shading import (
-    ImageRenderer,
-    ShippingShader,
-    image_psnr,
-    player_camera,
-    shipping_lights,
-)
 from prt_torch.player.lighting import Lighting
+from prt_torch.scoring.images import ImageRenderer, player_camera
+from prt_torch.scoring.lighting import shipping_lights
+from prt_torch.scoring.shading import ShippingShader
+from prt_torch.scoring.statistics import image_psnr
 from prt_torch.sh.basis import sh_basis
 from prt_torch.sh.quadrature import random_rotations, sphere_quadrature
 from prt_torch.sh.zonal import lobes_to_sh

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.scoring.shading import image_psnr
+from prt_torch.scoring.statistics import image_psnr
 
 
 def _textured_run(tiny_run: Path, dst: Path) -> Path:

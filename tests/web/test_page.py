@@ -9,13 +9,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from prt_torch.scoring.shading import image_psnr
+from prt_torch.scoring.statistics import image_psnr
 
 SKY = {"light": "sky", "playing": False, "unshadowed": False, "perPixel": False}
 
 
 def _mask(player: Any, positions: np.ndarray) -> np.ndarray:
-    from prt_torch.scoring.shading import ImageRenderer, player_camera
+    from prt_torch.scoring.images import ImageRenderer, player_camera
 
     ch = player.character
     with ImageRenderer(ch.rest_vertices, ch.faces, player_camera(ch, (480, 640))) as r:

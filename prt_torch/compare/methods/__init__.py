@@ -1,7 +1,7 @@
 """The methods ``prt compare`` puts side by side, and the registry later methods plug into.
 
 A method turns posed frames into either local-frame SH visibility (shaded by the harness on the shipping
-path, :mod:`prt_torch.scoring.shading`) or radiance directly. Built in:
+path, :mod:`prt_torch.scoring`) or radiance directly. Built in:
 
 =====================  ===========================================================================
 ``sh_truth``           Embree ray-traced visibility (:func:`prt_torch.bake.trace.trace_frame`, the run's

@@ -17,7 +17,7 @@ class Unshadowed(MethodBase):
     runtime = "constant"
 
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
-        from prt_torch.scoring.shading import unshadowed_visibility
+        from prt_torch.scoring.lighting import unshadowed_visibility
 
         self.h = unshadowed_visibility(run.order, run.bake)
         self.n_vertices = run.n_vertices

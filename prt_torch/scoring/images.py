@@ -1,0 +1,118 @@
+"""Images on the shipping path: the player's camera, renderer and tone map.
+
+The player's camera (:func:`player_camera`: :attr:`prt_torch.player.Player.eye` rule and its window size),
+its :class:`~prt_torch.player.render.MeshRenderer` and its tone map
+(:func:`~prt_torch.player.tonemap.auto_tonemap`), fixed ONCE per frame from the truth radiance and applied
+to every prediction of that frame (:meth:`ImageRenderer.frame_images`). The mask holds the pixels *fully*
+covered by the mesh (a render with white vertex colours on a black background reads 255 in every channel;
+anti-aliased silhouette pixels, which mix in the background, are excluded); the errors over it are
+:mod:`prt_torch.scoring.statistics`'.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from prt_torch.scoring.statistics import image_sse
+
+#: the player's default window ``(H, W)`` (``Player(window_size=...)``)
+WINDOW_HW = (480, 640)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """The player's camera: ``eye`` and ``center (3,)`` world, window ``(H, W)`` pixels."""
+
+    eye: np.ndarray
+    center: np.ndarray
+    window_hw: tuple[int, int] = WINDOW_HW
+
+
+def player_camera(character: Any, window_hw: tuple[int, int] = WINDOW_HW,
+                  positions: np.ndarray | None = None) -> Camera:
+    """The camera :class:`prt_torch.player.Player` uses for ``character`` at its default azimuth and
+    elevation (the player's own :func:`~prt_torch.player.player.camera_target` and
+    :func:`~prt_torch.player.player.camera_eye`; no exported run needed). ``positions (F, V, 3)``: a deformable
+    sequence, framed as the deformable player frames it (:func:`~prt_torch.player.player.sequence_view`)."""
+    from prt_torch.player.player import CAMERA_AZIMUTH, camera_eye, camera_target, sequence_view
+
+    if positions is None:
+        (center, radius), azimuth = camera_target(character.rest_vertices), CAMERA_AZIMUTH
+    else:
+        center, radius, azimuth = sequence_view(positions, character.faces)
+    eye = camera_eye(center, radius, azimuth)
+    return Camera(np.asarray(eye, dtype=np.float64), np.asarray(center, dtype=np.float64), tuple(window_hw))
+
+
+class ImageRenderer:
+    """The player's :class:`~prt_torch.player.render.MeshRenderer` at the player's camera, plus the mask rule.
+
+    Args:
+        rest_vertices: ``(V, 3)``; faces: ``(T, 3)`` of the character.
+        camera: :func:`player_camera`.
+    """
+
+    BACKGROUND = (0.08, 0.08, 0.1)  # the MeshRenderer default (the player's)
+
+    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> None:
+        from prt_torch.player.render import MeshRenderer, has_display, quiet_vtk_display_probe
+
+        if not has_display():
+            quiet_vtk_display_probe()
+        h, w = camera.window_hw
+        self.camera = camera
+        self.renderer = MeshRenderer(rest_vertices, faces, window_size=(w, h), off_screen=True)
+        self.renderer.set_camera(camera.eye, camera.center)
+        self.n_vertices = int(np.asarray(rest_vertices).shape[0])
+        self._white = np.full((self.n_vertices, 3), 255, np.uint8)
+
+    def render(self, positions: np.ndarray, colors: np.ndarray) -> np.ndarray:
+        """``(H, W, 3)`` uint8 image of the mesh at ``positions (V, 3)`` with vertex ``colors (V, 3)`` uint8."""
+        self.renderer.update(np.asarray(positions, dtype=np.float32), colors)
+        return self.renderer.render()
+
+    def mask(self, positions: np.ndarray) -> np.ndarray:
+        """``(H, W)`` bool: pixels fully covered by the mesh (white vertices on black read 255 everywhere)."""
+        pl = self.renderer.plotter
+        pl.set_background((0.0, 0.0, 0.0))
+        try:
+            img = self.render(positions, self._white)
+        finally:
+            pl.set_background(self.BACKGROUND)
+        return (img == 255).all(axis=-1)
+
+    def frame_images(self, positions: np.ndarray, radiance: Mapping[str, np.ndarray], truth: str,
+                     mask: np.ndarray | None = None) -> FrameImages:
+        """Render every ``radiance[name] (V, 3)`` with ONE tone map fixed from ``radiance[truth]``; images,
+        mask and the image SSE of each entry vs the truth."""
+        from prt_torch.player.tonemap import auto_tonemap
+
+        tm = auto_tonemap(radiance[truth])
+        m = self.mask(positions) if mask is None else mask
+        imgs = {name: self.render(positions, tm(np.asarray(r))) for name, r in radiance.items()}
+        sse = {name: image_sse(img, imgs[truth], m) for name, img in imgs.items()}
+        return FrameImages(imgs, m, sse, tm)
+
+    def close(self) -> None:
+        self.renderer.close()
+
+    def __enter__(self) -> ImageRenderer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass
+class FrameImages:
+    """One frame's images ``{name: (H, W, 3) uint8}``, its mask ``(H, W)``, ``{name: (sse, n)}`` vs the truth
+    and the tone map used (:class:`prt_torch.player.tonemap.ToneMap`)."""
+
+    images: dict[str, np.ndarray]
+    mask: np.ndarray
+    sse: dict[str, tuple[float, int]]
+    tonemap: Any
