@@ -45,7 +45,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError, StaleArtifact, check
+from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError, StaleArtifact, check, warn
 from prt_torch.io import atomic_write_json, remove_stale_temporaries
 
 if TYPE_CHECKING:
@@ -205,6 +205,32 @@ class RunDir:
         if not self.dataset_path.exists():
             raise MissingArtifact(f"no dataset in {self.path} ({_DATASET} missing): run `prt bake CONFIG` first")
         return BakedDataset(self.dataset_path)
+
+    def resolve_dataset(self, meta: dict[str, Any], dataset: str | os.PathLike[str] | None = None) -> BakedDataset:
+        """The dataset a trained run is scored on (``prt eval``, ``prt compare``): ``dataset`` when given, else the
+        run's own, else the one recorded in ``model.json`` at training time (``meta["dataset"]``; one warning line
+        names it: it is not the run's own). ``meta``: :meth:`model_meta`. A dataset of another character than the
+        model's (``meta["character_hash"]``, ``meta["n_vertices"]``) is a :class:`PrtError`; none found, a
+        :class:`MissingArtifact`."""
+        from prt_torch.bake.store import open_dataset
+
+        if dataset is not None:
+            ds = open_dataset(dataset)
+        elif self.dataset_path.exists():
+            ds = self.dataset()
+        else:
+            recorded = Path(str(meta.get("dataset", "")))
+            if not (str(meta.get("dataset", "")) and recorded.exists()):
+                raise MissingArtifact(f"dataset not found for {self.path} (recorded {recorded}): pass --dataset")
+            ds = open_dataset(recorded)
+            warn(f"{self.dataset_path} not found: reading the dataset recorded at training time, {ds.path}")
+        want = str(meta.get("character_hash") or "")
+        check(not want or ds.character_hash == want,
+              f"{ds.path} was baked from another character (hash {ds.character_hash[:12]}) than the model of "
+              f"{self.path} ({want[:12]})")
+        check(ds.n_vertices == int(meta["n_vertices"]),
+              f"{ds.path} has {ds.n_vertices} vertices, the model of {self.path} {meta['n_vertices']}")
+        return ds
 
     def character(self, expect_hash: str | None = None) -> Character:
         """The run's character; ``expect_hash``: its content hash must equal this."""

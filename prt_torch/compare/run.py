@@ -20,7 +20,6 @@ from prt_torch.cloth.bake import is_deformable
 from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
 from prt_torch.errors import PrtError, check
-from prt_torch.eval.evaluate import resolve_dataset
 from prt_torch.io import atomic_path, atomic_write_json, atomic_write_text
 from prt_torch.rundir import RunDir
 from prt_torch.scoring.images import ImageRenderer, player_camera
@@ -41,7 +40,7 @@ def load_compare_run(run_dir: str | Path | RunDir, dataset: str | Path | None = 
     """The :class:`CompareRun` of a trained run (its dataset and character; the export when present)."""
     run = RunDir.of(run_dir).require()
     meta = run.model_meta()
-    ds = resolve_dataset(run, meta, dataset)
+    ds = run.resolve_dataset(meta, dataset)
     character = ds.character()
     check(character.num_vertices == ds.n_vertices,
           f"{ds.path}: {ds.n_vertices} vertices, its character {character.num_vertices}")

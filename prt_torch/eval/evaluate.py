@@ -47,8 +47,8 @@ from typing import Any
 import numpy as np
 
 from prt_torch import metrics as M
-from prt_torch.bake.store import BakedDataset, SplitData, open_dataset
-from prt_torch.errors import PrtError, check, warn
+from prt_torch.bake.store import BakedDataset, SplitData
+from prt_torch.errors import PrtError, check
 from prt_torch.models import KINDS
 from prt_torch.models.storage import storage_table
 from prt_torch.rundir import RunDir
@@ -99,29 +99,6 @@ def visibility_metrics(pred: np.ndarray, truth: np.ndarray, clip_id: np.ndarray)
             "jitter": _jitter_per_clip(pred, truth, clip_id)}
 
 
-def resolve_dataset(run: RunDir, meta: dict[str, Any], dataset: str | Path | None) -> BakedDataset:
-    """The dataset a trained run is scored on: ``dataset`` when given, else the run's own, else the one recorded
-    in ``model.json`` at training time (one warning line names it: it is not the run's own). A dataset of another
-    character than the model's (content hash, vertex count) is a :class:`PrtError`."""
-    if dataset is not None:
-        ds = open_dataset(dataset)
-    elif run.dataset_path.exists():
-        ds = run.dataset()
-    else:
-        recorded = Path(str(meta.get("dataset", "")))
-        if not (str(meta.get("dataset", "")) and recorded.exists()):
-            raise PrtError(f"dataset not found for {run.path} (recorded {recorded}): pass --dataset")
-        ds = open_dataset(recorded)
-        warn(f"{run.dataset_path} not found: reading the dataset recorded at training time, {ds.path}")
-    want = str(meta.get("character_hash") or "")
-    check(not want or ds.character_hash == want,
-          f"{ds.path} was baked from another character (hash {ds.character_hash[:12]}) than the model of {run.path} "
-          f"({want[:12]})")
-    check(ds.n_vertices == int(meta["n_vertices"]),
-          f"{ds.path} has {ds.n_vertices} vertices, the model of {run.path} {meta['n_vertices']}")
-    return ds
-
-
 def _character(ds: BakedDataset) -> Any:
     """The dataset's character for the rendered images (:meth:`BakedDataset.character`: the ``character.npz``
     beside it, hash-checked; missing or another character is a :class:`PrtError`); ``None`` when the dataset has no
@@ -155,7 +132,7 @@ def evaluate_run(run_dir: str | Path | RunDir, dataset: str | Path | None = None
     """
     run = RunDir.of(run_dir).require()
     meta = run.model_meta()
-    ds = resolve_dataset(run, meta, dataset)
+    ds = run.resolve_dataset(meta, dataset)
     kinds = [k for k in (kinds or meta["kinds"]) if k in KINDS]
     check(len(kinds) > 0, f"no trained model kinds in {run.path}")
     models = {k: run.model(k) for k in kinds}
