@@ -59,8 +59,6 @@ _DATASET = "RunDir.dataset (the zarr store) is for train/eval/export"
 _MATERIAL_RPO = ("the character material's Cook-Torrance RPO is built once per run (`prt play --brdf material`, "
                  "`prt web`) and cached; without scikit-learn (player-only install) that is a one-line error")
 _SG_LIGHT = "`prt light --sg` needs the sg extra (healpy, torch) and says so in one line without it"
-_MODELS = ("prt_torch.models exports its torch classes lazily (module __getattr__); the seed-001 player imports only "
-           "its numpy submodule prt_torch.s001.posespace")
 
 #: entry point -> {"module: top" (a lazy import) or "module -> imported module" (a lazy edge): reason}
 UNUSED_LAZY: dict[str, dict[str, str]] = {
@@ -77,16 +75,11 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
         "prt_torch.rig.random_pose: sklearn": "the cpca training-pose sampler (k-means) runs in the bake's plan only",
         "prt_torch.rundir -> prt_torch.models.visibility": _LOAD_MODEL,
         "prt_torch.rundir -> prt_torch.bake.store": _DATASET,
-        "prt_torch.models -> prt_torch.models.projection": _MODELS,
-        "prt_torch.models -> prt_torch.models.regressors": _MODELS,
-        "prt_torch.models -> prt_torch.models.visibility": _MODELS,
         "prt_torch.commands.light -> prt_torch.sg.lighting": _SG_LIGHT,
         "prt_torch.commands.light: healpy": _SG_LIGHT,
         "prt_torch.commands.light: torch": _SG_LIGHT,
-        "prt_torch.commands.play -> prt_torch.vct.player": "`prt play --renderer sg` (SG lighting + voxel "
-                                                                   "cone tracing) needs torch and healpy",
-        "prt_torch.export -> prt_torch.export.run": "the deformable player reads the deform data (export.deform_data, "
-                                                    "numpy); export_run is `prt export`'s",
+        "prt_torch.vct.play -> prt_torch.vct.player": "`prt play --renderer sg` (SG lighting + voxel cone tracing) "
+                                                      "needs torch and healpy",
         "prt_torch.cloth.player -> prt_torch.cloth.cache": "`prt play --sequence` reads the run's vertex cache "
                                                                 "(zarr, extra bake); positions arrays play without it",
     },
@@ -249,8 +242,23 @@ def imports_of(mod: str) -> tuple[Imp, ...]:
                 out.append(Imp(mod, target, tuple(a.name for a in ch.names), lazy, ch.lineno))
             visit(ch, lazy or isinstance(ch, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
 
-    visit(ast.parse(path.read_text(), str(path)), False)
+    tree = ast.parse(path.read_text(), str(path))
+    visit(tree, False)
+    out.extend(_table_imports(mod, tree))
     return tuple(out)
+
+
+def _table_imports(mod: str, tree: ast.Module) -> list[Imp]:
+    """The hooks of ``mod``'s stage tables (module-level ``NAME: StageTable = {...}``, :mod:`prt_torch.plugins`):
+    each ``"module:attr"`` reference is an import the stage makes lazily (``plugins.load``) when it runs."""
+    out = []
+    for node in tree.body:
+        if isinstance(node, ast.AnnAssign) and ast.unparse(node.annotation) == "StageTable" and node.value:
+            for c in ast.walk(node.value):
+                if isinstance(c, ast.Constant) and isinstance(c.value, str) and ":" in c.value:
+                    target, _, attr = c.value.partition(":")
+                    out.append(Imp(mod, target, (attr,), True, c.lineno))
+    return out
 
 
 def local_targets(imp: Imp) -> list[str]:
@@ -375,7 +383,12 @@ def test_play_reaches_torch_only_through_listed_lazy_paths() -> None:
 
 def test_prt_help_imports_only_the_base_set() -> None:
     # `prt` imports every command module (prt_torch.cli.COMMANDS) before parsing: their module-level code
+    # (the core stages' in prt_torch/commands/, a method package's where cli.COMMANDS and commands.bench.BENCHES say)
+    from prt_torch.cli import COMMANDS
+    from prt_torch.commands.bench import BENCHES
+
     cmd_modules = tuple(m for m in all_modules("prt_torch") if m.startswith("prt_torch.commands"))
+    cmd_modules += tuple(sorted({*COMMANDS.values(), *BENCHES.values()} - set(cmd_modules)))
     w = walk(("prt_torch.cli", *cmd_modules), module_level_only=True)
     assert not undeclared(w, declared())
 

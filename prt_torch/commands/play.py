@@ -10,6 +10,8 @@ HELP = "Play a clip of an exported run with onnxruntime: offscreen MP4/PNG frame
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from prt_torch.player.renderers import renderers
+
     parser.add_argument("run", help="exported run directory (runs/NAME)")
     parser.add_argument("--clip", default=None, help="clip name of the character (e.g. walk)")
     parser.add_argument("--sequence", default=None, help="a deformable (cloth) run: the sequence of its vertex cache "
@@ -40,13 +42,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
                                                         "a timings file in RUN)")
     parser.add_argument("--light-angle", type=float, default=0.0, help="rotate the lighting about z (degrees)")
-    parser.add_argument("--renderer", default="onnx", choices=["onnx", "sg", "s001", "posespace", "transfer"],
-                        help="onnx: the run's learned models; sg: SG lighting + voxel cone-traced visibility of each "
-                             "posed frame (seed 004; needs torch and healpy); s001 / posespace: the run's compressed "
-                             "transfer matrices (seed 001, train.s001) interpolated per segment / globally; "
-                             "transfer: the run's learned diffuse (+ subsurface) transfer, L . t (seed 000, "
-                             "train.transfer, then prt export)")
-    parser.add_argument("--vct-resolution", type=int, default=128, help="--renderer sg: voxel grid side (64-256)")
+    table = renderers()  # onnx and the method packages' (prt_torch.player.renderers.RENDERERS)
+    parser.add_argument("--renderer", default="onnx", choices=[n for r in table for n in r.names],
+                        help="; ".join(r.help for r in table))
+    for r in table:  # each renderer's own options (prt_torch.player.renderers.Renderer.add_arguments)
+        if r.add_arguments is not None:
+            r.add_arguments(parser)
     parser.add_argument("--ground", action="store_true", help="a floor under the character(s), with cast shadows "
                                                               "(prt_torch.player.scene)")
     parser.add_argument("--scene", default=None, help="a scene YAML (scene: ground, characters), e.g. "
@@ -100,8 +101,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     from rich.console import Console
 
-    from prt_torch.player import Player
     from prt_torch.player.render import has_display
+    from prt_torch.player.renderers import renderer
 
     console = Console(stderr=True)
     show = args.out is None and args.png is None
@@ -111,27 +112,7 @@ def run(args: argparse.Namespace) -> int:
 
     run = RunDir(args.run)
     timings = args.timings or (run.timings_path(args.out) if args.out else run.play_timings)
-    if args.renderer == "sg":
-        from prt_torch.vct.player import SGPlayer
-
-        limits.check_int(args.vct_resolution, "--vct-resolution", 16, 512)
-        player = SGPlayer(args.run, env=args.env, brdf=args.brdf, threads=args.threads, window_size=(h, w),
-                          resolution=args.vct_resolution, device=args.device)
-    elif args.renderer in ("s001", "posespace"):
-        from prt_torch.s001.renderer import S001RunPlayer
-
-        player = S001RunPlayer(args.run, env=args.env, brdf=args.brdf, scheme=args.renderer, window_size=(h, w))
-    elif args.renderer == "transfer":
-        from prt_torch.transfer.player import TransferPlayer
-
-        player = TransferPlayer(args.run, env=args.env, brdf=args.brdf, threads=args.threads, window_size=(h, w),
-                                device=args.device)
-    else:
-        if args.graph == "pipeline":
-            raise PrtError("--graph pipeline plays a cloth run's --sequence (a skinned clip plays fused, split or "
-                           "overlap)")
-        player = Player(args.run, env=args.env, brdf=args.brdf, graph=args.graph, threads=args.threads,
-                        window_size=(h, w), device=args.device)
+    player = renderer(args.renderer).build(args, (h, w))  # prt_torch.player.renderers: onnx and the methods'
     if args.light_angle:
         player.rotate_light(np.radians(args.light_angle))
     clip = args.clip
