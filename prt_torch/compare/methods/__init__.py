@@ -16,9 +16,13 @@ path, :mod:`prt_torch.scoring`) or radiance directly. Built in:
                        regressor with that basis has at least
 =====================  ===========================================================================
 
+The methods of the method packages (``learned_local_*``, ``sg_vct``, ``shexp``, ``learned_transfer``, ``s001`` /
+``posespace``, ...) live in their packages (``prt_torch/<package>/compare.py``) and are found through
+:data:`COMPARE_METHODS`, a stage table (:mod:`prt_torch.plugins`): this package never imports a method package.
+
 Adding a method (one small module)::
 
-    # prt_torch/compare/methods/my_method.py
+    # prt_torch/<package>/compare.py (a core method: prt_torch/compare/methods/my_method.py)
     from prt_torch.compare.methods.base import FrameBatch, MethodBase, register
 
     @register
@@ -40,12 +44,16 @@ Adding a method (one small module)::
         def bytes(self) -> int:            # run-time data beyond the character, RPOs and lighting
             return 0
 
-and import the module at the bottom of this file (the import registers it). A ``radiance`` method returns
-``{brdf: (B, V, 3)}`` from ``radiance(batch, shading)`` (``shading``: a :class:`RadianceRequest` with the
-lighting, the RPO names and analytic BRDFs, and the camera); its ``vis_rel_err`` is ``null``.
+and list it in :data:`COMPARE_METHODS` under its package (``"prt_torch.<package>.compare:MyMethod"``; a core method:
+import its module at the bottom of this file). Importing the module registers its methods; the table's order is
+the display order. A ``radiance`` method returns ``{brdf: (B, V, 3)}`` from ``radiance(batch, shading)``
+(``shading``: a :class:`RadianceRequest` with the lighting, the RPO names and analytic BRDFs, and the camera); its
+``vis_rel_err`` is ``null``.
 """
 
 from __future__ import annotations
+
+import importlib
 
 from prt_torch.compare.methods.base import (
     METHODS,
@@ -59,17 +67,42 @@ from prt_torch.compare.methods.base import (
     resolve,
     unregister,
 )
+from prt_torch.plugins import StageTable
 
 __all__ = ["METHODS", "CompareRun", "FrameBatch", "FrameSet", "Method", "MethodBase", "RadianceRequest", "register",
            "resolve", "unregister"]
 
-# the built-in methods register themselves on import (display order)
+#: method package -> its compare methods (``"prt_torch.<package>.compare:Class"``; importing the module registers
+#: every method it defines, variants included). The table's order is the display order of :data:`METHODS`, between
+#: the core methods ``learned*`` and ``pca_floor``.
+COMPARE_METHODS: StageTable = {
+    "local": ("prt_torch.local.compare:LearnedLocalLinear", "prt_torch.local.compare:LearnedLocalMlp"),
+    "vct": ("prt_torch.vct.compare:SGVCT", "prt_torch.vct.compare:SGVCTNoPeak"),
+    "shexp": ("prt_torch.shexp.compare:Shexp",),
+    "transfer": ("prt_torch.transfer.compare:LearnedTransfer", "prt_torch.transfer.compare:BakedTransfer"),
+    "s001": ("prt_torch.s001.compare:S001", "prt_torch.s001.compare:PoseSpace"),
+    "heightfield": (),
+    "cloth": (),
+}
+
+
+def _register_packages(table: StageTable) -> None:
+    """Import the modules of ``table``'s references in the table's order: each registers its methods.
+
+    The module only, not the attribute: a method package's compare module that is being imported first imports
+    this package (through :mod:`~prt_torch.compare.methods.base`) and is not complete yet; its ``@register``
+    decorators add its methods when it finishes (the attributes themselves are checked by
+    ``tests/architecture/test_layers.py``)."""
+    for refs in table.values():
+        for ref in refs:
+            importlib.import_module(ref.partition(":")[0])
+
+
+# the built-in methods register themselves on import (display order): the core ones, then the method packages'
 from prt_torch.compare.methods import sh_truth as _sh_truth  # noqa: E402,F401,I001
 from prt_torch.compare.methods import unshadowed as _unshadowed  # noqa: E402,F401
 from prt_torch.compare.methods import learned as _learned  # noqa: E402,F401
-from prt_torch.local import compare as _local  # noqa: E402,F401
-from prt_torch.vct import compare as _sg_vct  # noqa: E402,F401
-from prt_torch.shexp import compare as _shexp  # noqa: E402,F401
-from prt_torch.transfer import compare as _learned_transfer  # noqa: E402,F401
-from prt_torch.s001 import compare as _s001  # noqa: E402,F401
+
+_register_packages(COMPARE_METHODS)
+
 from prt_torch.compare.methods import pca_floor as _pca_floor  # noqa: E402,F401
