@@ -12,7 +12,8 @@ numpy + onnxruntime only (never torch). Per frame (:meth:`DeformablePlayer.compu
               visibility.onnx (the pose graph: the same model) --> visibility (B, V, C)    ("visibility")
               features="graph": ORT positions.onnx: dihedral angles -> model --> visibility (B, V, C)
               a run shipping a LOCAL network (export.json ``local``): frames first, then the neighbour offsets
-              (LocalOffsetsSoA, numba) -> ORT local.onnx --> visibility (B, V, C); split and pipeline only
+              (numba; the local package's hook, prt_torch.player.sources) -> ORT local.onnx --> visibility (B, V, C);
+              split and pipeline only
               ORT shading.onnx (the skinned player's Player.shade)--> radiance (B, V, 3)     ("shading")
     [overlap] split, with the features + model on a worker thread while numpy computes the frames
     [pipeline] playback of a sequence (:meth:`DeformablePlayer.compute_stream`): a worker thread computes frame
@@ -142,13 +143,12 @@ class DeformablePlayer(Player):
         check(local is not True or isinstance(shipped, dict),
               f"{run.path} ships no local visibility model (train.local.default): play it without local=True")
         if isinstance(shipped, dict) and local is not False:
-            from prt_torch.local.soa import LocalOffsetsSoA
-            from prt_torch.local.data import load_neighbours
+            from prt_torch.player.sources import network_input
 
             check(graph in ("split", "pipeline"),
                   f"{run.path} ships a local visibility model (local_{shipped.get('kind')}), which needs the frames "
                   f"first: play it with --graph split or pipeline, not {graph}")
-            self.local_offsets = LocalOffsetsSoA(load_neighbours(run))
+            self.local_offsets = network_input("local", run)  # the local package's hook (local.npz neighbours)
             check(self.local_offsets.n_vertices == self.bundle.n_vertices,
                   f"{run.local_data_path.name}: {self.local_offsets.n_vertices} vertices, the run's subject "
                   f"{self.bundle.n_vertices}: run `prt export {run.path} --force`")
