@@ -7,6 +7,13 @@ rank. The one documented exception is :mod:`prt_torch.rundir`, the owner of the 
 loading methods import their owners (``bake.store``, ``rig.character``, ``models.visibility``) lazily,
 inside functions; at module level it is bottom-layer like everything else.
 
+The method packages (:data:`prt_torch.plugins.METHOD_PACKAGES`) rank above the core: a core module that imports
+one fails with "go through a stage table (prt_torch.plugins)". A method package's CLI hook modules (the ones
+``cli.COMMANDS`` and ``commands.bench.BENCHES`` name, :data:`CLI_HOOKS`) are command modules and rank with
+``commands``. A method package never imports another method package (same rank is not enough), and every stage
+table lists every method package and names only that package's modules (stated above
+:data:`EXPECTED_TABLES`).
+
 The same parsed imports also forbid import cycles among prt_torch modules (rundir's lazy loaders are left out of
 the graph: a cycle only they close passes), ``_private`` names taken from another module, and dead code
 (top-level definitions nothing references); the rules are stated above :func:`test_no_import_cycles`.
@@ -15,9 +22,15 @@ the graph: a cycle only they close passes), ``_private`` names taken from anothe
 from __future__ import annotations
 
 import ast
+import importlib
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+
+from prt_torch.cli import COMMANDS
+from prt_torch.commands.bench import BENCHES
+from prt_torch.plugins import METHOD_PACKAGES
 
 PKG = Path(__file__).resolve().parents[2] / "prt_torch"
 
@@ -38,20 +51,34 @@ RANKS: dict[str, int] = {
     "player": 9,
     "scoring": 9.5,  # the shipping-path scoring kit: uses player, used by eval, compare and web
     "eval": 10, "compare": 10,
-    **{pkg: 11 for pkg in ("s001", "transfer", "local", "shexp", "vct", "heightfield", "cloth")},
+    **{pkg: 11 for pkg in METHOD_PACKAGES},  # one package per method (prt_torch.plugins); CLI hooks: CLI_HOOKS
     "web": 12, "commands": 12, "cli": 12, "__main__": 13,
 }
 
 #: lazy (function-level) imports allowed to point up, for the run-directory owner only
 LAZY_UP_OK = {"rundir": {"bake", "rig", "models"}}
 
+#: a method package's CLI hook modules, the ones :data:`prt_torch.cli.COMMANDS` and
+#: :data:`prt_torch.commands.bench.BENCHES` name (``<pkg>/command.py``, ``<pkg>/bench.py``): command modules that
+#: live with their method, so they rank with ``commands`` (they share its argument checks, ``commands._validate``)
+CLI_HOOKS = frozenset(m for m in (*COMMANDS.values(), *BENCHES.values()) if m.split(".")[1] in METHOD_PACKAGES)
+
 
 def _unit(module: str) -> str:
-    """``prt_torch.a.b`` -> its layer unit (``config`` for any ``prt_torch.<pkg>.config`` schema module)."""
+    """``prt_torch.a.b`` -> its layer unit (``config`` for any ``prt_torch.<pkg>.config`` schema module,
+    ``commands`` for a method package's CLI hook module, :data:`CLI_HOOKS`)."""
     parts = module.split(".")
     if len(parts) >= 3 and parts[-1] == "config":
         return "config"
+    if module in CLI_HOOKS:
+        return "commands"
     return parts[1] if len(parts) > 1 else "__init__"
+
+
+def _package(module: str) -> str | None:
+    """The method package a module belongs to (its CLI hooks included), or ``None`` for a core module."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 2 and parts[1] in METHOD_PACKAGES else None
 
 
 def _modules() -> list[tuple[str, Path]]:
@@ -86,25 +113,52 @@ def _imports(tree: ast.AST, module: str) -> list[tuple[str, int, bool]]:
     return found
 
 
-def _violations() -> list[str]:
+def _violations(sources: dict[str, str]) -> list[str]:
+    """``module:line: ...`` for every import of ``sources`` (``{module: source}``) against the layer table; a core
+    module importing a method package says to go through a stage table."""
     bad = []
-    for module, path in _modules():
+    for module, text in sources.items():
         src = _unit(module)
         assert src in RANKS, f"{module}: not in the layer table of tests/architecture/test_layers.py"
-        for target, line, lazy in _imports(ast.parse(path.read_text()), module):
+        for target, line, lazy in _imports(ast.parse(text), module):
             dst = _unit(target)
             if dst == src:
                 continue
             assert dst in RANKS, f"{module} imports {target}: not in the layer table"
             if RANKS[dst] > RANKS[src] and not (lazy and dst in LAZY_UP_OK.get(src, set())):
-                bad.append(f"{path.relative_to(PKG.parent)}:{line}: {src} (rank {RANKS[src]}) imports {target} "
-                           f"({dst}, rank {RANKS[dst]})")
+                if dst in METHOD_PACKAGES and src not in METHOD_PACKAGES:
+                    bad.append(f"{module}:{line}: core module {module} imports method package {dst} ({target}): go "
+                               f"through a stage table (prt_torch.plugins)")
+                else:
+                    bad.append(f"{module}:{line}: {src} (rank {RANKS[src]}) imports {target} ({dst}, rank "
+                               f"{RANKS[dst]})")
+    return bad
+
+
+def _cross_method_imports(sources: dict[str, str]) -> list[str]:
+    """``module:line: ...`` for every import from one method package into ANOTHER (CLI hooks included): a method
+    package imports only core layers."""
+    bad = []
+    for module, text in sources.items():
+        own = _package(module)
+        if own is None:
+            continue
+        for target, line, _lazy in _imports(ast.parse(text), module):
+            other = target.split(".")[1] if target.count(".") else None
+            if other in METHOD_PACKAGES and other != own:
+                bad.append(f"{module}:{line}: method package {own} imports method package {other} ({target}): a "
+                           f"method package imports only core layers")
     return bad
 
 
 def test_imports_follow_the_layers() -> None:
-    bad = _violations()
+    bad = _violations(_sources())
     assert not bad, "imports against the data flow:\n" + "\n".join(bad)
+
+
+def test_method_packages_import_only_core_layers() -> None:
+    bad = _cross_method_imports(_sources())
+    assert not bad, "imports between method packages:\n" + "\n".join(bad)
 
 
 def test_every_unit_has_a_rank() -> None:
@@ -288,7 +342,8 @@ def _referenced(texts: list[str]) -> set[str]:
             elif isinstance(node, ast.alias):
                 used.add(node.name.rpartition(".")[2])
             elif isinstance(node, ast.Constant) and isinstance(node.value, str) and len(node.value) < 200:
-                used.update(w.rpartition(".")[2] for w in node.value.split() if w.replace(".", "_").isidentifier())
+                words = [w.rpartition(":")[2] if ":" in w else w for w in node.value.split()]  # "module:attr" refs
+                used.update(w.rpartition(".")[2] for w in words if w.replace(".", "_").isidentifier())
     return used
 
 
@@ -380,3 +435,151 @@ def test_checker_catches_dead_code() -> None:
                            "x = _helper()\ndef __getattr__(name):\n    pass\n")}
     users = ["from prt_torch.m import used\n", "monkeypatch.setattr('prt_torch.m.patched', None)\n"]
     assert _dead(src, users) == ["prt_torch.m.dead", "prt_torch.m.Dead", "prt_torch.m._private"]
+
+
+# -- the method packages and the stage tables ----------------------------------------------------------------------
+#
+# docs/DESIGN.md, "Layers": the core stages import no method package (the layer check above says so: a core module's
+# import of one fails with "go through a stage table"); a method package imports only core layers, never another
+# method package (same rank is not enough: :func:`test_method_packages_import_only_core_layers`); and each stage
+# finds the methods through a stage table (:mod:`prt_torch.plugins`): every module-level ``NAME: StageTable = {...}``
+# of prt_torch lists EVERY method package, and each of its ``"module:attr"`` references names a module of THAT
+# package and an attribute the module has.
+
+#: every stage table of prt_torch, ``module:NAME`` (a new table is added here, so that none goes unnoticed)
+EXPECTED_TABLES = frozenset({
+    "prt_torch.bake.deformable:SUBJECTS",
+    "prt_torch.bake.extras:BAKE_EXTRAS",
+    "prt_torch.fit.stages:FIT_STAGES",
+    "prt_torch.export.shippers:SHIPPERS",
+    "prt_torch.player.renderers:RENDERERS",
+    "prt_torch.player.sources:VISIBILITY_SOURCES",
+    "prt_torch.compare.methods:COMPARE_METHODS",
+    "prt_torch.compare.sequences:SEQUENCES",
+})
+
+
+def _stage_tables(sources: dict[str, str]) -> dict[str, ast.AnnAssign]:
+    """``{"module:NAME": node}`` of every module-level ``NAME: StageTable = ...`` of ``sources``."""
+    found = {}
+    for module, text in sources.items():
+        for node in ast.parse(text).body:
+            if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                    and ast.unparse(node.annotation) == "StageTable"):
+                found[f"{module}:{node.target.id}"] = node
+    return found
+
+
+def _defines(text: str, name: str) -> bool:
+    """Whether a module source binds ``name`` at module level (a def, class, assignment or import)."""
+    for node in ast.parse(text).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.name == name:
+            return True
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
+            node, ast.AnnAssign) else []
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            return True
+        if isinstance(node, (ast.Import, ast.ImportFrom)) and any(
+                (a.asname or a.name.split(".")[0]) == name for a in node.names):
+            return True
+    return False
+
+
+def _table_problems(sources: dict[str, str], packages: tuple[str, ...], has_attr: Callable[[str, str], bool]
+                    ) -> list[str]:
+    """``table: problem`` for every stage table of ``sources`` that does not list exactly ``packages``, or whose
+    reference is not ``"prt_torch.<that package>.<module>:<attr>"`` with the module in ``sources`` and
+    ``has_attr(module, attr)``."""
+    bad = []
+    for name, node in _stage_tables(sources).items():
+        if node.value is None:
+            bad.append(f"{name}: no value")
+            continue
+        try:
+            table = ast.literal_eval(node.value)
+        except ValueError:
+            bad.append(f"{name}: not a literal dict of string tuples")
+            continue
+        if not isinstance(table, dict):
+            bad.append(f"{name}: not a dict")
+            continue
+        if set(table) != set(packages):
+            missing, extra = sorted(set(packages) - set(table)), sorted(set(table) - set(packages))
+            bad.append(f"{name}: must list every method package (prt_torch.plugins.METHOD_PACKAGES): missing "
+                       f"{missing}, not method packages {extra}")
+        for package, refs in table.items():
+            if not isinstance(refs, tuple):
+                bad.append(f"{name}[{package!r}]: a tuple of references, () where the package has no hook")
+                continue
+            for ref in refs:
+                module, _, attr = str(ref).partition(":")
+                if not module.startswith(f"prt_torch.{package}.") or not attr:
+                    bad.append(f"{name}[{package!r}]: {ref!r} is not 'prt_torch.{package}.<module>:<attr>' (a "
+                               f"table names only its package's own modules)")
+                elif module not in sources:
+                    bad.append(f"{name}[{package!r}]: {ref!r}: no module {module}")
+                elif not has_attr(module, attr):
+                    bad.append(f"{name}[{package!r}]: {ref!r}: {module} has no {attr!r}")
+    return bad
+
+
+def test_every_stage_table_lists_every_method_package() -> None:
+    sources = _sources()
+    assert set(_stage_tables(sources)) == EXPECTED_TABLES, (
+        "the stage tables changed: update EXPECTED_TABLES", sorted(set(_stage_tables(sources)) ^ EXPECTED_TABLES))
+
+    def has_attr(module: str, attr: str) -> bool:  # bound in the source, else (a name made at run time) imported
+        return _defines(sources[module], attr) or hasattr(importlib.import_module(module), attr)
+
+    bad = _table_problems(sources, METHOD_PACKAGES, has_attr)
+    assert not bad, "stage tables:\n" + "\n".join(bad)
+
+
+def test_checker_catches_a_core_module_importing_a_method_package() -> None:
+    """A planted core module importing a method package (lazily too) fails with the stage-table message; the
+    method package importing the core and a command module importing the method do not."""
+    src = {"prt_torch.fit.planted": "def f():\n    from prt_torch.s001.fit import fit_s001\n",
+           "prt_torch.s001.fit": "from prt_torch.fit.kinds import KINDS\n",
+           "prt_torch.commands.planted": "from prt_torch.s001 import fit\n"}
+    bad = _violations(src)
+    assert len(bad) == 1 and bad[0].startswith("prt_torch.fit.planted:2: core module prt_torch.fit.planted imports "
+                                               "method package s001"), bad
+    assert bad[0].endswith("go through a stage table (prt_torch.plugins)")
+
+
+def test_checker_catches_a_method_package_importing_another() -> None:
+    """A planted method package module importing another method package (lazily too, a CLI hook too) fails; its
+    own package and the core do not."""
+    hook = sorted(CLI_HOOKS)[0]
+    src = {"prt_torch.cloth.planted": "from prt_torch.cloth.cache import VertexCache\nfrom prt_torch.player import x\n"
+                                      "def f():\n    from prt_torch.local.soa import LocalOffsetsSoA\n",
+           hook: "import prt_torch.s001.posespace\n" if not hook.startswith("prt_torch.s001.") else
+                 "import prt_torch.vct.play\n"}
+    bad = _cross_method_imports(src)
+    assert [b.split(":")[0] for b in bad] == ["prt_torch.cloth.planted", hook], bad
+    assert "method package cloth imports method package local" in bad[0]
+
+
+def test_checker_catches_a_bad_stage_table() -> None:
+    """A planted table missing a package, one naming a module of another package, one naming no module, an attribute
+    its module lacks, and a non-tuple entry each fail; a complete table of existing hooks passes."""
+    packages = ("a", "b")
+    hooks = {"prt_torch.a.hook": "def f():\n    pass\n", "prt_torch.b.hook": "G = 1\n"}
+
+    def table(body: str) -> dict[str, str]:
+        return {**hooks, "prt_torch.stage": f"from prt_torch.plugins import StageTable\nT: StageTable = {body}\n"}
+
+    def has(module: str, attr: str) -> bool:
+        return _defines(hooks[module], attr)
+
+    assert _table_problems(table('{"a": ("prt_torch.a.hook:f",), "b": ()}'), packages, has) == []
+    cases = {
+        '{"a": ("prt_torch.a.hook:f",)}': "must list every method package",
+        '{"a": ("prt_torch.b.hook:G",), "b": ()}': "a table names only its package's own modules",
+        '{"a": ("prt_torch.a.gone:f",), "b": ()}': "no module prt_torch.a.gone",
+        '{"a": ("prt_torch.a.hook:g",), "b": ()}': "prt_torch.a.hook has no 'g'",
+        '{"a": "prt_torch.a.hook:f", "b": ()}': "a tuple of references",
+    }
+    for body, message in cases.items():
+        bad = _table_problems(table(body), packages, has)
+        assert len(bad) == 1 and bad[0].startswith("prt_torch.stage:T") and message in bad[0], (body, bad)
