@@ -139,7 +139,9 @@ def _one_line(text: str, limit: int = 300) -> str:
     return out if len(out) <= limit else out[: limit - 3] + "..."
 
 
-def _format_validation_error(exc: ValidationError, source: str) -> str:
+def validation_message(exc: ValidationError, source: str) -> str:
+    """The one-line message of a config validation error: ``<source>: unknown config key 'a.b'``, ``missing config
+    key``, or ``bad value for 'a.b': <why>`` (the first error only)."""
     err = exc.errors()[0]
     loc = _one_line(".".join(str(p) for p in err["loc"]), 120) or "<root>"
     if err["type"] == "extra_forbidden":
@@ -160,7 +162,7 @@ def config_from_dict(data: dict[str, Any], source: str = "config", base_dir: Pat
     try:
         cfg = RunConfig.model_validate(data)
     except ValidationError as exc:
-        raise PrtError(_format_validation_error(exc, source)) from None
+        raise PrtError(validation_message(exc, source)) from None
     except RecursionError:
         raise PrtError(f"{source}: config nested too deeply (at most {L.MAX_CONFIG_DEPTH} levels)") from None
     cfg.base_dir = base_dir

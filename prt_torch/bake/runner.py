@@ -35,8 +35,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.cloth.bake import clusters as deformable_clusters
-from prt_torch.cloth.bake import ensure_simulated, frame_operator, is_deformable, posed_frames
 from prt_torch.bake.embree import ray_offset, require_embreex
 from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
@@ -55,10 +53,12 @@ from prt_torch.bake.store import (
     write_arrays,
 )
 from prt_torch.bake.trace import RaySet, trace_frame
-from prt_torch.s001.bake import frame_results
+from prt_torch.cloth.bake import clusters as deformable_clusters
+from prt_torch.cloth.bake import ensure_simulated, frame_operator, is_deformable, posed_frames
 from prt_torch.errors import DamagedArtifact, PrtError
 from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.rundir import RunDir
+from prt_torch.s001.bake import frame_results
 
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
@@ -232,12 +232,7 @@ def _worker_init(parent: int) -> None:
 
 def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any]:
     b = cfg.bake
-    bake_params = {k: getattr(b, k) for k in ("order", "n_rays", "below_horizon", "transfer", "transfer_order",
-                                              "bounces", "albedo", "seed", "ray_offset", "cluster_bandwidth",
-                                              "max_clusters", "min_cluster_size", "vertex_chunk_rays",
-                                              "transfer_matrix", "matrix_order", "matrix_bounces")}
-    bake_params["subsurface"] = b.subsurface.model_dump(mode="json") if b.subsurface is not None else None
-    bake_params["ray_offset_world"] = offset_world
+    bake_params = {**b.store_params(), "ray_offset_world": offset_world}  # the schema's recorded fields
     return {
         "format_version": FORMAT_VERSION,
         "clip_names": plan.clip_names,

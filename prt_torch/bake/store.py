@@ -50,10 +50,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError
+from prt_torch.bake.config import BakeConfig, absent_values, recorded_keys, result_keys
+from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError, StaleArtifact
 from prt_torch.metrics import evenly_spaced_indices
 
 if TYPE_CHECKING:
+    from prt_torch.config import RunConfig
     from prt_torch.rig.character import Character
 
 #: the layout written by this code: 2 = crc32c on every chunk, every chunk written (1: neither)
@@ -64,13 +66,11 @@ READABLE_FORMATS = (1, 2)
 #: per-frame float arrays written by the bake tasks, with their per-frame shapes
 PER_FRAME_RESULTS = ("positions", "normals", "frames", "visibility", "transfer", "transfer_matrix", "subsurface")
 
-#: attrs["bake"] keys that change the baked numbers (compared on resume)
-RESULT_KEYS = ("order", "n_rays", "below_horizon", "transfer", "transfer_order", "bounces", "albedo", "seed",
-               "ray_offset", "cluster_bandwidth", "max_clusters", "min_cluster_size", "transfer_matrix",
-               "matrix_order", "matrix_bounces", "subsurface")
-#: the value of a result key added after stores were written, for a store that does not record it
-RESULT_KEY_DEFAULTS = {"below_horizon": "zero", "transfer_matrix": False, "matrix_order": 4, "matrix_bounces": 1,
-                       "subsurface": None}
+#: attrs["bake"] keys that change the baked numbers (compared on resume): the BakeConfig fields marked ``result``
+RESULT_KEYS = result_keys()
+#: the value of a recorded key added after stores were written, for a store that does not record it (the schema's
+#: ``absent`` marks, :func:`prt_torch.bake.config.absent_values`)
+RESULT_KEY_DEFAULTS = absent_values()
 
 #: the visibility convention text of each ``bake.below_horizon``
 VISIBILITY_CONVENTIONS = {
@@ -102,6 +102,50 @@ def recorded_config(attrs: Any) -> dict[str, Any]:
     when absent): the one way to read it (:meth:`BakedDataset.recorded_config`)."""
     cfg = (attrs or {}).get("config") or {}
     return dict(cfg) if isinstance(cfg, dict) else {}
+
+
+def recorded_run_config(attrs: Any, source: str = "dataset") -> RunConfig | None:
+    """The run config a store records (``attrs["config"]``), validated as a :class:`prt_torch.config.RunConfig`
+    (a field an older config lacks takes its default), its ``bake`` section the settings the store was baked with
+    (:func:`recorded_bake_config`); ``None`` when the store records none. A recorded config that is not a mapping
+    is a :class:`DamagedArtifact`, one that does not validate a :class:`StaleArtifact` (one line naming the key).
+    ``source`` names the store in the message."""
+    from prt_torch.config import config_from_dict
+
+    raw = (attrs or {}).get("config")
+    if raw is None or raw == {}:
+        return None
+    if not isinstance(raw, dict):
+        raise DamagedArtifact(f"{source}: the recorded run config is a {type(raw).__name__}, not a mapping")
+    bake = recorded_bake_config(attrs, source)
+    try:
+        return config_from_dict({**raw, "bake": bake}, source=f"{source} (recorded run config)")
+    except PrtError as exc:
+        raise StaleArtifact(f"{exc}: not a config this version reads; re-bake the run") from None
+
+
+def recorded_bake_config(attrs: Any, source: str = "dataset") -> BakeConfig:
+    """The bake settings a store was baked with, validated as a :class:`prt_torch.bake.config.BakeConfig`: the
+    recorded ``attrs["bake"]`` (its :func:`~prt_torch.bake.config.recorded_keys`; a key a store written before it
+    was recorded lacks takes its :func:`~prt_torch.bake.config.absent_values` value) over the recorded config's
+    ``bake`` section (the settings the store does not record there, e.g. ``blockers``), schema defaults for the
+    rest. A recorded ``bake`` that is not a mapping is a :class:`DamagedArtifact`, one that does not validate a
+    :class:`StaleArtifact` (one line naming the key)."""
+    from pydantic import ValidationError
+
+    from prt_torch.config import validation_message
+
+    attrs = attrs or {}
+    section = recorded_config(attrs).get("bake") or {}
+    bake = attrs.get("bake") or {}
+    if not (isinstance(section, dict) and isinstance(bake, dict)):
+        raise DamagedArtifact(f"{source}: the recorded bake settings are not a mapping")
+    data = {**section, **absent_values(), **{k: bake[k] for k in recorded_keys() if k in bake}}
+    try:
+        return BakeConfig.model_validate(data)
+    except ValidationError as exc:
+        msg = validation_message(exc, f"{source} (recorded bake settings)")
+        raise StaleArtifact(f"{msg}: not a config this version reads; re-bake the run") from None
 
 
 def recorded_fps(attrs: Any) -> float | None:
@@ -733,6 +777,14 @@ class BakedDataset:
     def recorded_fps(self) -> float | None:
         """The frame rate the bake posed the clips at (:func:`recorded_fps` of :attr:`attrs`)."""
         return recorded_fps(self.attrs)
+
+    def run_config(self) -> RunConfig | None:
+        """The run config recorded by the bake, validated (:func:`recorded_run_config`; ``None`` when absent)."""
+        return recorded_run_config(self.attrs, str(self.path))
+
+    def bake_config(self) -> BakeConfig:
+        """The bake settings the store was baked with, validated (:func:`recorded_bake_config`)."""
+        return recorded_bake_config(self.attrs, str(self.path))
 
     def character(self) -> Character:
         """The baked character of the run directory holding the dataset (hash-checked)."""

@@ -23,12 +23,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from prt_torch.errors import MissingArtifact, check
 from prt_torch.cloth.deform_data import write_deform_data
+from prt_torch.errors import MissingArtifact, check
 from prt_torch.rundir import RunDir
 
 if TYPE_CHECKING:
     import torch
+
+    from prt_torch.config import RunConfig
 
 #: version of the deformable export (part of the export stage key)
 DEFORMABLE_VERSION = 2  # 2: positions_fused.onnx
@@ -55,12 +57,13 @@ class DeformSpec:
     operator: Any
 
 
-def run_config_dict(run: RunDir) -> dict[str, Any]:
-    """The run config recorded by the bake (the dataset's ``config`` attrs; ``{}`` when absent)."""
+def run_config(run: RunDir) -> RunConfig | None:
+    """The run config recorded by the bake, validated (:meth:`prt_torch.bake.store.BakedDataset.run_config`);
+    ``None`` without a dataset or a recorded config."""
     try:
-        return run.dataset().recorded_config()
+        return run.dataset().run_config()
     except MissingArtifact:
-        return {}
+        return None
 
 
 def is_deformable(run: RunDir) -> bool:
@@ -80,10 +83,10 @@ def deform_spec(run: RunDir) -> DeformSpec:
     :class:`prt_torch.cloth.subject.ClothSubject` of the recorded config, the frame operator from the character's
     rest mesh and the dataset's cluster labels (:meth:`FrameOperator.from_rest`, the bake's rule)."""
     from prt_torch.cloth.bake import load_subject
-    from prt_torch.config import config_from_dict
 
-    cfg = config_from_dict(run_config_dict(run), source=f"{run.dataset_path} config attrs")
-    check(cfg.cloth is not None, f"{run.path}: not a deformable run (its config has no cloth: section)")
+    cfg = run_config(run)
+    check(cfg is not None and cfg.cloth is not None,
+          f"{run.path}: not a deformable run (its recorded config has no cloth: section)")
     subject = load_subject(cfg)
     n_body = 0
     if getattr(cfg.cloth, "append_pose", False):

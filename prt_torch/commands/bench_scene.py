@@ -116,10 +116,10 @@ def _heldout_clip(run: Any) -> str:
     from prt_torch.errors import MissingArtifact
 
     try:
-        cfg = run.dataset().recorded_config()
+        cfg = run.dataset().run_config()
     except MissingArtifact:
         return "wave"
-    held = (cfg.get("character", {}) or {}).get("heldout_clips") or []
+    held = cfg.character.heldout_clips if cfg is not None else []
     if held:
         from prt_torch.rig.config import as_clip_range
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch import metrics as M
-from prt_torch.bake.store import recorded_config, recorded_fps
+from prt_torch.bake.store import recorded_fps
 from prt_torch.cloth.bake import is_deformable
 from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
@@ -95,10 +95,10 @@ def deformable_clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = 
     (:func:`prt_torch.cloth.bake.sequence_frames`, :func:`~prt_torch.cloth.bake.posed_frames` with the
     dataset's clusters); ``max_frames``: evenly spaced subset."""
     from prt_torch.cloth.bake import frame_operator, load_subject, open_cache, posed_frames, sequence_frames
-    from prt_torch.config import config_from_dict
 
     ds = ctx.dataset
-    cfg = config_from_dict(recorded_config(ds.attrs), source=f"{ds.path} attrs['config']")
+    cfg = ds.run_config()  # validated (prt_torch.bake.store.recorded_run_config)
+    check(cfg is not None, f"{ds.path}: records no run config (a deformable run's sequences need it)")
     cfg.run_dir = ctx.run.path
     subject = load_subject(cfg)
     seq = sequence_frames(cfg, subject, open_cache(cfg), clip)

@@ -82,10 +82,10 @@ __all__ = ["PARITY_RTOL", "SHEXP_GRAPH_VERSION", "SHEXP_INPUTS", "SHEXP_OUTPUTS"
 
 
 def blocker_count(run: RunDir | Mapping[str, Any]) -> int:
-    """The run's sphere count: the bake config's ``blockers`` (recorded in the dataset's ``config`` attrs; ``run``
-    is the run directory or those attrs), :data:`prt_torch.blockers.spheres.DEFAULT_SPHERES` for datasets baked
-    before the field existed."""
-    from prt_torch.bake.store import recorded_config
+    """The run's sphere count: the bake config's ``blockers`` (recorded in the dataset's ``config`` attrs, read
+    validated by :func:`prt_torch.bake.store.recorded_bake_config`; ``run`` is the run directory or those attrs),
+    :data:`prt_torch.blockers.spheres.DEFAULT_SPHERES` for datasets baked before the field existed."""
+    from prt_torch.bake.store import recorded_bake_config
     from prt_torch.blockers.spheres import DEFAULT_SPHERES
 
     if isinstance(run, RunDir):
@@ -95,8 +95,8 @@ def blocker_count(run: RunDir | Mapping[str, Any]) -> int:
             return DEFAULT_SPHERES
     else:
         attrs = run
-    cfg = recorded_config(attrs)
-    return int((cfg.get("bake", {}) or {}).get("blockers", DEFAULT_SPHERES) or DEFAULT_SPHERES)
+    cfg = recorded_bake_config(attrs)
+    return int(cfg.blockers) if "blockers" in cfg.model_fields_set else DEFAULT_SPHERES
 
 
 def ship_shexp(run: RunDir, character: Any, order: int, n_spheres: int, opset: int = 17,
