@@ -105,8 +105,8 @@ class DeformablePlayer(Player):
                  window_size: tuple[int, int] = (480, 640), exposure: Any = None, n_lobes: int = 3,
                  blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu",
                  features: str = "numpy", local: bool | None = None) -> None:
-        from prt_torch.deform.dihedral_soa import DihedralSoA
         from prt_torch.cloth.deform_data import DeformData
+        from prt_torch.deform.dihedral_soa import DihedralSoA
 
         check(graph in DEFORMABLE_MODES, f"unknown graph mode {graph!r} for a deformable run: expected one of "
                                          f"{list(DEFORMABLE_MODES)}")

@@ -143,8 +143,8 @@ def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
     import numpy as np
     from rich.console import Console
 
-    from prt_torch.errors import PrtError
     from prt_torch.cloth.player import DeformablePlayer
+    from prt_torch.errors import PrtError
     from prt_torch.player.render import has_display
     from prt_torch.rundir import RunDir
 

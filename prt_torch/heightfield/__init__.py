@@ -18,7 +18,16 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from prt_torch.heightfield.horizon import horizon_angles, max_pyramid, wedge_azimuths
-    from prt_torch.heightfield.surface import HeightFieldFrame, Terrain, Waves, grid_faces, grid_frames, grid_normals, make_frame, make_generator
+    from prt_torch.heightfield.surface import (
+        HeightFieldFrame,
+        Terrain,
+        Waves,
+        grid_faces,
+        grid_frames,
+        grid_normals,
+        make_frame,
+        make_generator,
+    )
     from prt_torch.heightfield.truth import truth_visibility
     from prt_torch.heightfield.visibility import HeightFieldVisibility
     from prt_torch.heightfield.wedges import WedgeTable, canonical_wedge
@@ -46,7 +55,25 @@ _LAZY: dict[str, str] = {
     "zyz_angles": "prt_torch.heightfield.zrotation",
 }
 
-__all__ = sorted(_LAZY)
+__all__ = [
+    "HeightFieldFrame",
+    "HeightFieldVisibility",
+    "Terrain",
+    "Waves",
+    "WedgeTable",
+    "ZRotator",
+    "canonical_wedge",
+    "grid_faces",
+    "grid_frames",
+    "grid_normals",
+    "horizon_angles",
+    "make_frame",
+    "make_generator",
+    "max_pyramid",
+    "truth_visibility",
+    "wedge_azimuths",
+    "zyz_angles",
+]
 
 
 def __getattr__(name: str) -> Any:

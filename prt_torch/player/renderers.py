@@ -1,4 +1,5 @@
-"""The renderers ``prt play --renderer`` offers: the player's own (``onnx``) and the method packages' (:data:`RENDERERS`).
+"""The renderers ``prt play --renderer`` offers: the player's own (``onnx``) and the method packages'
+(:data:`RENDERERS`).
 
 A renderer is a :class:`Renderer`: the ``--renderer`` value(s) it answers to, its part of the option's help, the
 options it adds to ``prt play`` (``add_arguments``, optional) and ``build(args, size)``, which checks those options

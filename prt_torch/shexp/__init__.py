@@ -28,7 +28,8 @@ _LAZY: dict[str, str] = {
     "zonal_sum": "prt_torch.shexp.zonal_sum",
 }
 
-__all__ = sorted(_LAZY)
+__all__ = ["SHExponential", "ShexpVisibility", "cap_complement_zh", "cos_log_table", "exp_reference",
+           "log_visibility_sum", "log_visibility_table", "ol_table", "sh_exp", "shexp_visibility", "zonal_sum"]
 
 
 def __getattr__(name: str) -> Any:

@@ -39,7 +39,9 @@ _LAZY: dict[str, str] = {
     "voxelize": "prt_torch.vct.voxelize",
 }
 
-__all__ = sorted(_LAZY)
+__all__ = ["ConeSet", "ConeTracer", "OpacityPyramid", "TraceSettings", "VoxelGrid", "build_pyramid",
+           "cone_aperture", "cone_sharpness", "fit_grid", "is_closed_mesh", "pack_lobe_cones", "peak_cones",
+           "trace_cones", "voxelize"]
 
 
 def __getattr__(name: str) -> Any:
