@@ -10,6 +10,8 @@ from the BRDF lobes (eq. 5-6 aperture, 7 sub-cones by circle packing, Fig. 4) an
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -56,3 +58,17 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY})
+
+
+class _Package(types.ModuleType):
+    """This package, keeping an export whose name is also its submodule's (``voxelize``): importing the submodule
+    binds the module on the package, and the export (the function of the same name) is kept instead, as the eager
+    ``from prt_torch.vct.voxelize import voxelize`` did."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if isinstance(value, types.ModuleType) and _LAZY.get(name) == value.__name__:
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
