@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from prt_torch.bake.deformable import source_of
 from prt_torch.errors import PrtError
 from prt_torch.rig.load import add_motions, check_disjoint, load_character, resolve_clips
 
@@ -47,7 +48,7 @@ class BakePlan:
         skin: ``(F, J, 4, 4)`` float64 skin matrices (``world @ inverse_bind``); a deformable plan's are the
             identity ``(F, 1, 4, 4)`` (its single root joint).
         positions: ``(F, V, 3)`` float32 vertex-cache positions of a deformable subject (cloth, issue 11: the
-            bake traces these, never skinning; :mod:`prt_torch.cloth.bake`), None for a skinned character.
+            bake traces these, never skinning; :mod:`prt_torch.bake.deformable`), None for a skinned character.
     """
 
     character: Character
@@ -84,8 +85,9 @@ def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
     sets are errors). The random poses' source clips are the training entries' frames, nothing else."""
     from prt_torch.rig.random_pose import random_poses
 
-    if getattr(cfg, "cloth", None) is not None:
-        return make_deformable_plan(cfg)
+    source = source_of(cfg)
+    if source is not None:  # a deformable subject: its source's plan (positions, no skinning)
+        return source.plan(cfg)
     ch = cfg.character
     if character is None:
         character = load_character(cfg)
@@ -124,32 +126,3 @@ def make_plan(cfg: RunConfig, character: Character | None = None) -> BakePlan:
               "heldout": [c.name for c in heldout]}
     return BakePlan(character=character, clip_names=names, splits=splits, clip_id=clip_id,
                     frame_index=frame_idx, pose=pose, skin=skin)
-
-
-def make_deformable_plan(cfg: RunConfig, subject: Any | None = None, cache: Any | None = None) -> BakePlan:
-    """The plan of a cloth run (``cloth:`` section) from its vertex cache: one dataset clip per cached sequence
-    (``ClothSubject.sequences("train")`` then ``("heldout")``, splits from the cloth config), ``frame_index`` the
-    frame within the sequence, ``pose`` the deformable input features, ``skin`` the identity, ``positions`` the
-    cached positions (:func:`prt_torch.cloth.bake.sequence_frames`). A missing cache or sequence, NaN
-    positions or a wrong vertex count is a one-line :class:`PrtError`."""
-    from prt_torch.cloth.bake import load_subject, open_cache, sequence_frames
-
-    subject = load_subject(cfg) if subject is None else subject
-    cache = open_cache(cfg) if cache is None else cache
-    splits = {"train": list(subject.sequences("train")), "heldout": list(subject.sequences("heldout"))}
-    names = splits["train"] + splits["heldout"]
-    if not splits["train"]:
-        raise PrtError(f"cloth run {cfg.name!r}: no training sequence")
-    if len(set(names)) != len(names):
-        raise PrtError(f"cloth run {cfg.name!r}: a sequence is both a training and a held-out one: {names}")
-    seqs = [sequence_frames(cfg, subject, cache, n) for n in names]
-    widths = {s.features.shape[1] for s in seqs}
-    if len(widths) != 1:
-        raise PrtError(f"cloth run {cfg.name!r}: sequences with different feature widths {sorted(widths)}")
-    clip_id = np.concatenate([np.full(len(s.positions), i, np.int32) for i, s in enumerate(seqs)])
-    frame_index = np.concatenate([np.arange(len(s.positions), dtype=np.int32) for s in seqs])
-    positions = np.concatenate([s.positions for s in seqs]).astype(np.float32)
-    skin = np.broadcast_to(np.eye(4), (len(clip_id), 1, 4, 4)).copy()
-    return BakePlan(character=subject.character, clip_names=names, splits=splits, clip_id=clip_id,
-                    frame_index=frame_index, pose=np.concatenate([s.features for s in seqs]).astype(np.float32),
-                    skin=skin, positions=positions)

@@ -35,7 +35,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from prt_torch.bake.deformable import clusters as deformable_clusters
+from prt_torch.bake.deformable import frame_operator, is_deformable, posed_frames, source_of
 from prt_torch.bake.embree import ray_offset, require_embreex
+from prt_torch.bake.extras import ArraySpec, BakeExtra, TracedFrame, bake_extras
 from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
     FORMAT_VERSION,
@@ -52,13 +55,11 @@ from prt_torch.bake.store import (
     writable,
     write_arrays,
 )
+from prt_torch.bake.subsurface import DipoleParams, frame_subsurface
 from prt_torch.bake.trace import RaySet, trace_frame
-from prt_torch.cloth.bake import clusters as deformable_clusters
-from prt_torch.cloth.bake import ensure_simulated, frame_operator, is_deformable, posed_frames
 from prt_torch.errors import DamagedArtifact, PrtError
 from prt_torch.rig.vertex_frames import cluster_axes, cluster_bones, cluster_vertices, vertex_frames
 from prt_torch.rundir import RunDir
-from prt_torch.s001.bake import frame_results
 
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
@@ -69,7 +70,7 @@ if TYPE_CHECKING:
 class BlockTask:
     """One task: frames ``[f0, f1)`` of the store at ``dataset`` (absolute path) with their
     ``skin (f1 - f0, J, 4, 4)`` float64 matrices, or a deformable subject's vertex-cache
-    ``positions (f1 - f0, V, 3)`` float32 (then traced as they are, frames by :mod:`prt_torch.cloth.bake`)."""
+    ``positions (f1 - f0, V, 3)`` float32 (then traced as they are, frames by :mod:`prt_torch.bake.deformable`)."""
 
     dataset: str
     f0: int
@@ -108,6 +109,10 @@ class BakeResult:
         return self.rays / self.seconds if self.seconds > 0 else 0.0
 
 
+#: the per-frame arrays the core bake itself makes (the others come from :data:`prt_torch.bake.extras.BAKE_EXTRAS`)
+CORE_RESULTS = ("positions", "normals", "frames", "visibility", "transfer", "subsurface")
+
+
 # -- worker side ---------------------------------------------------------------------------------
 
 @dataclass
@@ -123,6 +128,7 @@ class _Context:
     bones: np.ndarray
     rays: RaySet
     params: dict[str, Any]
+    extras: list[tuple[BakeExtra, ArraySpec]]  # the method packages' arrays of this bake (prt_torch.bake.extras)
     frame_op: Any = None  # deformable stores: prt_torch.deform.frames.FrameOperator (bake.deformable.frame_operator)
 
 
@@ -142,7 +148,7 @@ def _context(dataset: str) -> _Context:
                        axes=np.asarray(g["cluster_axis"][:]), bones=np.asarray(g["cluster_bone"][:]),
                        rays=RaySet.make(int(params["n_rays"]), int(params["order"]), ch.num_vertices,
                                         int(params["seed"]), below_horizon=below_horizon_of(params)),
-                       params=params)
+                       params=params, extras=bake_extras(params, ch.num_vertices, core=CORE_RESULTS))
         if is_deformable(dict(g.attrs)):
             ctx.frame_op = frame_operator(ch, labels)
         _CONTEXTS.clear()
@@ -174,8 +180,9 @@ def bake_block(task: BlockTask) -> BlockStats:
         V = ch.num_vertices
         vis = np.empty((n, V, int(p["order"]) ** 2), dtype=np.float32)
         tr = np.empty((n, V, int(p["transfer_order"]) ** 2), dtype=np.float32) if p["transfer"] else None
-        extra: dict[str, np.ndarray] = {}  # transfer_matrix / subsurface, from the same rays and hits
-        keep_hits = bool(p.get("transfer_matrix") or p.get("subsurface"))
+        sss = DipoleParams.from_dict(p["subsurface"]) if p.get("subsurface") else None
+        extra: dict[str, np.ndarray] = {}  # subsurface and the extras' arrays, from the same rays and hits
+        keep_hits = sss is not None or any(e.needs_hits for e, _ in ctx.extras)
         rays = 0
         for i in range(n):
             res = trace_frame(pos[i], frames[i], ch.faces, ctx.rays, float(p["ray_offset_world"]),
@@ -185,9 +192,19 @@ def bake_block(task: BlockTask) -> BlockStats:
             vis[i] = res.visibility
             if tr is not None:
                 tr[i] = res.transfer
-            if keep_hits:
-                for name, a in frame_results(p, pos[i], frames[i], ch.faces, ctx.rays, res).items():
-                    extra.setdefault(name, np.empty((n, *a.shape), dtype=np.float32))[i] = a
+            core: dict[str, np.ndarray] = {}
+            if sss is not None:
+                if res.transfer is None or res.hits is None:
+                    raise PrtError("subsurface needs the frame's transfer and ray hits (bake.transfer: true)")
+                core["subsurface"] = frame_subsurface(pos[i], frames[i], ch.faces, ctx.rays, res.hits, res.transfer,
+                                                      sss)
+            frame = TracedFrame(positions=pos[i], frames=frames[i], faces=ch.faces, rays=ctx.rays, result=res,
+                                arrays=core)
+            arrays = dict(core)
+            for ext, spec in ctx.extras:
+                arrays.update(_checked(ext.compute(p, frame), spec))
+            for name, a in arrays.items():
+                extra.setdefault(name, np.empty((n, *a.shape), dtype=np.float32))[i] = a
             rays += res.n_rays
     g = ctx.arrays  # every chunk written, even one equal to the fill value: a missing chunk is damage
     sl = slice(task.f0, task.f1)
@@ -201,6 +218,18 @@ def bake_block(task: BlockTask) -> BlockStats:
         g[name][sl] = a
     g["done"][sl] = np.ones(n, dtype=bool)  # last: the block counts as baked only once all its data is in
     return BlockStats(frames=n, rays=rays, seconds=time.perf_counter() - t0)
+
+
+def _checked(arrays: dict[str, np.ndarray], spec: ArraySpec) -> dict[str, np.ndarray]:
+    """A bake extra's arrays of one frame, each of exactly the per-frame shape and dtype it declared."""
+    if set(arrays) != set(spec):
+        raise PrtError(f"bake extra computed {sorted(arrays)}, declared {sorted(spec)}")
+    for name, a in arrays.items():
+        shape, dtype = spec[name]
+        if a.shape != shape or a.dtype != np.dtype(dtype):
+            raise PrtError(f"bake extra array {name!r}: {a.dtype}{list(a.shape)} per frame, declared "
+                           f"{dtype}{list(shape)}")
+    return arrays
 
 
 def _worker_init(parent: int) -> None:
@@ -247,7 +276,7 @@ def _attrs(cfg: RunConfig, plan: BakePlan, offset_world: float) -> dict[str, Any
         "conventions": conventions(b.below_horizon),
         "versions": library_versions(),
         "config": cfg.model_dump(mode="json"),
-        # positions from the vertex cache, FrameOperator frames, k-means clusters (prt_torch.cloth.bake)
+        # positions from the subject's source, FrameOperator frames, k-means clusters (prt_torch.bake.deformable)
         "deformable": plan.deformable,
     }
 
@@ -281,10 +310,10 @@ def _create(path: Path, cfg: RunConfig, plan: BakePlan, attrs: dict[str, Any]) -
     }
     if b.transfer:
         per_frame["transfer"] = ((V, b.transfer_order**2), "float32")
-    if b.transfer_matrix:
-        per_frame["transfer_matrix"] = ((V, b.matrix_order**2, b.matrix_order**2), "float32")
     if b.subsurface is not None:
         per_frame["subsurface"] = ((V, b.transfer_order**2), "float32")
+    for _, spec in bake_extras(attrs["bake"], V, core=CORE_RESULTS):
+        per_frame.update(spec)
     create_store(path, _static_arrays(cfg, plan), per_frame, plan.n_frames, b.frames_per_task, attrs)
 
 
@@ -438,8 +467,9 @@ def run_bake(
     # the scheduler is reached before anything is written (a cloth run's simulation, the run directory, the store)
     client = connect_scheduler(scheduler) if scheduler else None
     try:
-        if getattr(cfg, "cloth", None) is not None:  # a cloth run: simulate (resumably) what the vertex cache lacks
-            ensure_simulated(cfg, progress=progress)
+        source = source_of(cfg)
+        if source is not None:  # a deformable subject: e.g. simulate (resumably) what a cloth's vertex cache lacks
+            source.prepare(cfg, progress)
         plan = make_plan(cfg)  # before the lock: a bad config creates nothing
         b = cfg.bake
         # the vertex count of a glTF character is known only now: one task's arrays must fit in memory

@@ -1,21 +1,16 @@
-"""Deformable subjects (cloth, issue 11) in the bake: the ONE rule that turns vertex-cache positions into what the
-bake traces and every reader re-derives.
+"""The cloth subject's source of frames in the bake (issue 11): vertex-cache positions -> the run's bake plan.
 
-A deformable run's frames are not skinned: the positions of every frame come from the run's vertex cache
+A cloth run's frames are not skinned: the positions of every frame come from the run's vertex cache
 (``simulation.zarr``, :class:`prt_torch.cloth.cache.VertexCache`, written by
 :func:`prt_torch.cloth.simulate.simulate`), the subject is the single-root-joint character
 :attr:`prt_torch.cloth.subject.ClothSubject.character` (body + cloth for the cape, the cloth alone for the flag),
-and
+its pose features are :func:`prt_torch.cloth.inputs.cloth_features` of each frame (signed dihedral angles of the
+cloth's interior edges, + the body's pose features when ``cloth.append_pose``), the dataset's ``pose`` column.
+Clusters and vertex frames follow the core deformable rule (:mod:`prt_torch.bake.deformable`).
 
-- clusters: :func:`prt_torch.deform.clusters.spatial_clusters` (k-means of the rest vertices into
-  ``bake.max_clusters`` clusters, ``bake.seed``), stored as the dataset's ``cluster``;
-- vertex frames: :class:`prt_torch.deform.frames.FrameOperator` built from the character's rest mesh and those
-  labels (:func:`frame_operator`); normals are its ``n`` rows (:func:`prt_torch.rig.mesh.vertex_normals`);
-- pose features: :func:`prt_torch.cloth.inputs.cloth_features` of each frame (signed dihedral angles of the
-  cloth's interior edges, + the body's pose features when ``cloth.append_pose``), the dataset's ``pose`` column.
-
-:func:`sequence_frames` is used by the plan (:func:`prt_torch.bake.plan.make_plan`) and by ``prt compare --clip``
-alike, :func:`posed_frames` by the bake and ``prt compare --clip``: nothing else computes them.
+:data:`SOURCE` is the cloth's entry of :data:`prt_torch.bake.deformable.SUBJECTS`: :func:`ensure_simulated`
+before the plan, :func:`make_deformable_plan` the plan. :func:`sequence_frames` is used by the plan and by
+``prt compare --clip`` alike: nothing else computes them.
 """
 
 from __future__ import annotations
@@ -26,22 +21,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from prt_torch.bake.deformable import DeformableSource
 from prt_torch.errors import DamagedArtifact, PrtError, StaleArtifact
 from prt_torch.shapes import check_shape
 
 if TYPE_CHECKING:
+    from prt_torch.bake.plan import BakePlan
     from prt_torch.config import RunConfig
-    from prt_torch.rig.character import Character
-
-
-def is_deformable(attrs_or_cfg: Any) -> bool:
-    """Whether a run config (``cloth`` section set) or a dataset's attrs (``deformable: true``, or a recorded config
-    with a ``cloth:`` section) is deformable: the one rule (export, compare, fit and the bake ask it)."""
-    if isinstance(attrs_or_cfg, dict):
-        from prt_torch.bake.store import recorded_config
-
-        return bool(attrs_or_cfg.get("deformable", False)) or bool(recorded_config(attrs_or_cfg).get("cloth"))
-    return getattr(attrs_or_cfg, "cloth", None) is not None
 
 
 def simulation_path(cfg: RunConfig) -> Path:
@@ -49,33 +35,6 @@ def simulation_path(cfg: RunConfig) -> Path:
     from prt_torch.rundir import RunDir
 
     return Path(RunDir(cfg.out_dir.resolve()).simulation)
-
-
-def clusters(character: Character, n_clusters: int, seed: int) -> np.ndarray:
-    """``(V,)`` int32 cluster of each vertex: k-means of the rest vertices (at most one cluster per vertex)."""
-    from prt_torch.deform.clusters import spatial_clusters
-
-    k = max(1, min(int(n_clusters), character.num_vertices))
-    return np.asarray(spatial_clusters(character.rest_vertices, k, seed), dtype=np.int32)
-
-
-def frame_operator(character: Character, labels: np.ndarray) -> Any:
-    """The :class:`~prt_torch.deform.frames.FrameOperator` of a deformable subject (rest mesh + cluster labels):
-    rebuilt identically by the bake's workers, ``prt compare`` and the export from ``character.npz`` and the
-    dataset's ``cluster``."""
-    from prt_torch.deform.frames import FrameOperator
-
-    return FrameOperator.from_rest(np.asarray(character.rest_vertices), np.asarray(character.faces),
-                                   np.asarray(labels))
-
-
-def posed_frames(op: Any, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(normals (F, V, 3), frames (F, V, 3, 3))`` float32 of ``positions (F, V, 3)``: the FrameOperator's frames
-    (rows t, b, n); the normals are their ``n`` rows (the smooth posed normals)."""
-    frames = np.asarray(op.frames(np.asarray(positions)), dtype=np.float32)
-    if frames.ndim == 3:
-        frames = frames[None]
-    return np.ascontiguousarray(frames[:, :, 2, :]), frames
 
 
 @dataclass
@@ -181,3 +140,36 @@ def ensure_simulated(cfg: RunConfig, progress: bool = True) -> list[str]:
         raise PrtError(f"cloth run {cfg.name!r}: the simulation left {len(still)} sequence(s) missing: "
                        f"{', '.join(still[:4])}")
     return missing
+
+
+def make_deformable_plan(cfg: RunConfig, subject: Any | None = None, cache: Any | None = None) -> BakePlan:
+    """The plan of a cloth run (``cloth:`` section) from its vertex cache: one dataset clip per cached sequence
+    (``ClothSubject.sequences("train")`` then ``("heldout")``, splits from the cloth config), ``frame_index`` the
+    frame within the sequence, ``pose`` the deformable input features, ``skin`` the identity, ``positions`` the
+    cached positions (:func:`sequence_frames`). A missing cache or sequence, NaN positions or a wrong vertex
+    count is a one-line :class:`PrtError`."""
+    from prt_torch.bake.plan import BakePlan
+
+    subject = load_subject(cfg) if subject is None else subject
+    cache = open_cache(cfg) if cache is None else cache
+    splits = {"train": list(subject.sequences("train")), "heldout": list(subject.sequences("heldout"))}
+    names = splits["train"] + splits["heldout"]
+    if not splits["train"]:
+        raise PrtError(f"cloth run {cfg.name!r}: no training sequence")
+    if len(set(names)) != len(names):
+        raise PrtError(f"cloth run {cfg.name!r}: a sequence is both a training and a held-out one: {names}")
+    seqs = [sequence_frames(cfg, subject, cache, n) for n in names]
+    widths = {s.features.shape[1] for s in seqs}
+    if len(widths) != 1:
+        raise PrtError(f"cloth run {cfg.name!r}: sequences with different feature widths {sorted(widths)}")
+    clip_id = np.concatenate([np.full(len(s.positions), i, np.int32) for i, s in enumerate(seqs)])
+    frame_index = np.concatenate([np.arange(len(s.positions), dtype=np.int32) for s in seqs])
+    positions = np.concatenate([s.positions for s in seqs]).astype(np.float32)
+    skin = np.broadcast_to(np.eye(4), (len(clip_id), 1, 4, 4)).copy()
+    return BakePlan(character=subject.character, clip_names=names, splits=splits, clip_id=clip_id,
+                    frame_index=frame_index, pose=np.concatenate([s.features for s in seqs]).astype(np.float32),
+                    skin=skin, positions=positions)
+
+
+#: the cloth's entry of :data:`prt_torch.bake.deformable.SUBJECTS` (a run with a ``cloth:`` section)
+SOURCE = DeformableSource(section="cloth", prepare=ensure_simulated, plan=make_deformable_plan)

@@ -67,9 +67,9 @@ def run_config(run: RunDir) -> RunConfig | None:
 
 
 def is_deformable(run: RunDir) -> bool:
-    """Whether the run's dataset is a deformable one (:func:`prt_torch.cloth.bake.is_deformable` of its attrs;
+    """Whether the run's dataset is a deformable one (:func:`prt_torch.bake.deformable.is_deformable` of its attrs;
     False without a dataset)."""
-    from prt_torch.cloth.bake import is_deformable as attrs_deformable
+    from prt_torch.bake.deformable import is_deformable as attrs_deformable
 
     try:
         attrs = dict(run.dataset().attrs)
@@ -104,9 +104,9 @@ def _body_width(run: RunDir, subject: Any) -> int:
 
 
 def frame_operator(run: RunDir) -> Any:
-    """:class:`FrameOperator` of the run's subject (:func:`prt_torch.cloth.bake.frame_operator`: rest mesh of
+    """:class:`FrameOperator` of the run's subject (:func:`prt_torch.bake.deformable.frame_operator`: rest mesh of
     ``character.npz``, the dataset's cluster labels - the bake's rule)."""
-    from prt_torch.cloth.bake import frame_operator as subject_operator
+    from prt_torch.bake.deformable import frame_operator as subject_operator
 
     return subject_operator(run.character(), np.asarray(run.dataset().cluster))
 

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from prt_torch import metrics as M
+from prt_torch.bake.deformable import is_deformable
 from prt_torch.bake.store import recorded_fps
-from prt_torch.cloth.bake import is_deformable
 from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
 from prt_torch.compare.reference import front_facing, reference_light, reference_pair
 from prt_torch.errors import PrtError, check
@@ -92,9 +92,10 @@ def clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> Fr
 
 def deformable_clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> FrameSet:
     """A cached sequence of a deformable (cloth) run, positions, features and frames by the bake's rule
-    (:func:`prt_torch.cloth.bake.sequence_frames`, :func:`~prt_torch.cloth.bake.posed_frames` with the
+    (:func:`prt_torch.cloth.bake.sequence_frames`, :func:`~prt_torch.bake.deformable.posed_frames` with the
     dataset's clusters); ``max_frames``: evenly spaced subset."""
-    from prt_torch.cloth.bake import frame_operator, load_subject, open_cache, posed_frames, sequence_frames
+    from prt_torch.bake.deformable import frame_operator, posed_frames
+    from prt_torch.cloth.bake import load_subject, open_cache, sequence_frames
 
     ds = ctx.dataset
     cfg = ds.run_config()  # validated (prt_torch.bake.store.recorded_run_config)

@@ -132,7 +132,7 @@ def train_dataset(dataset: str | Path | BakedDataset, run_dir: str | Path | RunD
 
 
 def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
-    from prt_torch.cloth.bake import is_deformable
+    from prt_torch.bake.deformable import is_deformable
 
     check(cfg.local is None or is_deformable(ds.attrs),
           f"{ds.path}: train.local needs a deformable (cloth) dataset")  # before anything is fitted or written

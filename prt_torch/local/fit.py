@@ -181,8 +181,8 @@ def local_key(ds: Any, cfg: LocalConfig, seed: int) -> str:
 
 def rest_geometry(ds: Any) -> tuple[np.ndarray, np.ndarray]:
     """``rest (V, 3)``, ``rest_frames (V, 3, 3)`` of a deformable dataset's subject: the character file beside
-    it and the bake's frame rule (:func:`prt_torch.cloth.bake.frame_operator`)."""
-    from prt_torch.cloth.bake import frame_operator
+    it and the bake's frame rule (:func:`prt_torch.bake.deformable.frame_operator`)."""
+    from prt_torch.bake.deformable import frame_operator
     from prt_torch.rig.character import Character
     from prt_torch.rundir import RunDir
 

@@ -37,13 +37,15 @@ numpy only, float32 results; no Python loop over vertices or rays.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from prt_torch.bake.directions import hemisphere_set, rotated_frames, world_directions
-from prt_torch.bake.trace import FrameResult, RayHits, RaySet, check_below_horizon
+from prt_torch.bake.extras import ArraySpec, BakeExtra, TracedFrame
+from prt_torch.bake.trace import RayHits, RaySet, check_below_horizon
 from prt_torch.bake.transfer import bounce_operator, gather_entries, interreflect, occlusion_transfer
 from prt_torch.bake.visibility import projection_table, rotate_sh_z
 from prt_torch.errors import PrtError
@@ -185,37 +187,29 @@ def transfer_matrices(
     return out
 
 
-def frame_results(params: dict[str, Any], positions: np.ndarray, frames: np.ndarray, faces: np.ndarray,
-                  rays: RaySet, result: FrameResult) -> dict[str, np.ndarray]:
-    """The optional per-frame arrays of a bake (``transfer_matrix``, ``subsurface``) from a traced frame.
+def matrix_arrays(params: Mapping[str, Any], n_vertices: int) -> ArraySpec:
+    """The array seed 001 adds to a bake (:class:`prt_torch.bake.extras.BakeExtra`): ``transfer_matrix`` of
+    per-frame shape ``(V, C, C)`` float32 (``C = matrix_order**2``) when ``params["transfer_matrix"]`` is set
+    (``params``: the store's ``attrs["bake"]``), else nothing."""
+    if not params.get("transfer_matrix"):
+        return {}
+    c = int(params["matrix_order"]) ** 2
+    return {"transfer_matrix": ((n_vertices, c, c), "float32")}
 
-    Args:
-        params: the store's ``attrs["bake"]`` (``transfer_matrix``, ``matrix_order``, ``matrix_bounces``,
-            ``albedo``, ``subsurface`` (a dict of :class:`prt_torch.bake.config.SubsurfaceConfig` fields or
-            None), ``transfer_order``).
-        positions, frames, faces: the traced posed mesh.
-        rays: the bake's ray set.
-        result: :func:`prt_torch.bake.trace.trace_frame`'s result with ``keep_hits=True`` (and the transfer
-            when ``subsurface`` is set).
 
-    Returns:
-        ``{name: array}`` with ``subsurface (V, C6)`` and/or ``transfer_matrix (V, C, C)`` float32.
-    """
-    from prt_torch.bake.subsurface import DipoleParams, frame_subsurface
+def frame_matrices(params: Mapping[str, Any], frame: TracedFrame) -> dict[str, np.ndarray]:
+    """``{"transfer_matrix": (V, C, C) float32}`` of one traced frame (:func:`transfer_matrices` of its ray hits,
+    ``matrix_order``, ``matrix_bounces`` and ``albedo`` from ``params``, the frame's ``subsurface`` as the exit
+    term when the bake has one)."""
+    hits = frame.result.hits
+    if hits is None:
+        raise PrtError("transfer matrices need the frame's ray hits (trace_frame keep_hits=True)")
+    return {"transfer_matrix": transfer_matrices(frame.frames, hits, frame.rays, frame.faces,
+                                                 order=int(params["matrix_order"]),
+                                                 bounces=int(params["matrix_bounces"]),
+                                                 albedo=float(params["albedo"]),
+                                                 exit_transfer=frame.arrays.get("subsurface"))}
 
-    out: dict[str, np.ndarray] = {}
-    sss = params.get("subsurface")
-    if sss:
-        if result.transfer is None or result.hits is None:
-            raise PrtError("subsurface needs the frame's transfer and ray hits (bake.transfer: true)")
-        out["subsurface"] = frame_subsurface(positions, frames, faces, rays, result.hits, result.transfer,
-                                             DipoleParams.from_dict(sss))
-    if params.get("transfer_matrix"):
-        if result.hits is None:
-            raise PrtError("transfer matrices need the frame's ray hits (trace_frame keep_hits=True)")
-        out["transfer_matrix"] = transfer_matrices(frames, result.hits, rays, faces,
-                                                   order=int(params["matrix_order"]),
-                                                   bounces=int(params["matrix_bounces"]),
-                                                   albedo=float(params["albedo"]),
-                                                   exit_transfer=out.get("subsurface"))
-    return out
+
+#: seed 001's entry of :data:`prt_torch.bake.extras.BAKE_EXTRAS`: per-vertex transfer matrices from the bake's rays
+TRANSFER_MATRICES = BakeExtra(arrays=matrix_arrays, compute=frame_matrices, needs_hits=True)

@@ -61,7 +61,7 @@ class Shexp(MethodBase):
         """Runs exported with a sphere set (:func:`has_sphere_set`): a default method there, unavailable
         elsewhere. (:meth:`prepare` still has a torch path for a run without one, used by tests.) Never for a
         deformable (cloth) dataset: its spheres would be posed by skin matrices, which a vertex cache has not."""
-        from prt_torch.cloth.bake import is_deformable
+        from prt_torch.bake.deformable import is_deformable
 
         return has_sphere_set(run) and not is_deformable(dict(run.dataset.attrs))
 

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 import yaml
 
-from prt_torch.bake.plan import make_deformable_plan
 from prt_torch.bake.store import BakedDataset
+from prt_torch.cloth.bake import make_deformable_plan
 from prt_torch.config import config_from_dict
 from prt_torch.errors import PrtError
 from prt_torch.rig.character import Character

@@ -60,7 +60,7 @@ def build_deformable_run(base: Path, nx: int = NX, nz: int = NZ, order: int = OR
     the visibility depends on them too."""
     import zarr
 
-    from prt_torch.cloth.bake import frame_operator
+    from prt_torch.bake.deformable import frame_operator
     from prt_torch.cloth.inputs import cloth_features
     from prt_torch.deform.clusters import spatial_clusters
     from prt_torch.deform.mesh import interior_edges
