@@ -8,7 +8,9 @@ when present) and writes into the run directory (:class:`prt_torch.rundir.RunDir
     model.json           metadata: conventions, order, V, A, kinds, dataset/character hash,
                          chosen alphas/neurons per cluster, CV scores, fit times, and ``files``:
                          the sha256 of every file above and of metrics.json
-    metrics.json         visibility errors per kind on train and held-out frames
+    metrics.json         visibility errors per kind on train and held-out frames, and one entry per method
+                         hook that ran (:data:`prt_torch.fit.stages.FIT_STAGES`: ``train.transfer``,
+                         ``train.local``, ``train.s001``, each writing its own files)
 
 The fit runs on ``train.device`` (:mod:`prt_torch.fit.device`: the CPU reference path, or CUDA); the models
 are always assembled and saved on the CPU.
@@ -34,6 +36,7 @@ from prt_torch.fit.config import TrainConfig
 from prt_torch.fit.device import resolve_device
 from prt_torch.fit.inputs import load_skinning
 from prt_torch.fit.kinds import FitResult, Reduced, cv_train_only, fit_kinds, log_progress, reduce_training
+from prt_torch.fit.stages import fit_hooks
 from prt_torch.io import atomic_write_json
 from prt_torch.metrics import vis_rel_err
 from prt_torch.models import (
@@ -92,12 +95,9 @@ def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
     fit agrees with it only to rounding, so it is keyed apart (``cuda`` without a GPU: one-line PrtError)."""
     settings = cfg.model_dump(mode="json")
     settings.pop("device")
-    if settings.get("transfer") is None:  # keys of runs trained before train.transfer existed stay valid
-        settings.pop("transfer", None)
-    if settings.get("s001") is None:  # likewise train.s001 (seed 001 compressed transfer matrices)
-        settings.pop("s001", None)
-    if settings.get("local") is None:  # likewise train.local (local visibility models)
-        settings.pop("local", None)
+    for hook in fit_hooks():  # keys of runs trained before a method's section (train.transfer ...) existed stay valid
+        if settings.get(hook.section) is None:
+            settings.pop(hook.section, None)
     for cap in ("output_max_components", "input_max_components"):  # likewise the size caps
         if settings.get(cap) is None:
             settings.pop(cap, None)
@@ -132,11 +132,11 @@ def train_dataset(dataset: str | Path | BakedDataset, run_dir: str | Path | RunD
 
 
 def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
-    from prt_torch.bake.deformable import is_deformable
-
-    check(cfg.local is None or is_deformable(ds.attrs),
-          f"{ds.path}: train.local needs a deformable (cloth) dataset")  # before anything is fitted or written
-    extra = ("positions", "frames") if cfg.local is not None else ()  # what the local models learn from
+    hooks = [h for h in fit_hooks() if h.is_set(cfg)]  # the methods this training fits besides the visibility
+    for hook in hooks:  # before anything is fitted or written
+        if hook.check is not None:
+            hook.check(ds, cfg)
+    extra = tuple(dict.fromkeys(a for h in hooks for a in h.extra))  # the per-frame arrays the hooks read
     train = ds.split("train", extra=extra)
     check(train.n_frames >= 2 * cfg.folds, f"{ds.path}: only {train.n_frames} training frames for {cfg.folds} folds")
     # the stage's files; model.json (written last, with their sha256) commits them (see unit_files)
@@ -167,22 +167,10 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     for name, sp in splits.items():
         metrics.setdefault("pca_floor", {})[name] = vis_rel_err(red.out.expand(red.out.reduce(sp.visibility)),
                                                                sp.visibility)
-    from prt_torch.transfer.fit import train_transfer  # seed 000 learned transfer (train.transfer; else removed)
-
-    transfer = train_transfer(ds, run, cfg, progress)
-    if transfer is not None:
-        metrics["transfer"] = transfer
-    from prt_torch.local.fit import train_local  # local visibility models (train.local; else removed)
-
-    local = train_local(ds, run, cfg, splits, progress)
-    if local is not None:
-        metrics["local"] = local
-    from prt_torch.s001.fit import train_s001  # seed 001 compressed transfer matrices (train.s001; else removed)
-
-    s001 = train_s001(ds, run, cfg, progress)
-    if s001 is not None:
-        metrics["s001"] = {k: s001[k] for k in ("compression_ratio", "raw_bytes", "stored_bytes", "n_clusters",
-                                                "train_rel_err_unquantised", "seconds")}
+    for hook in fit_hooks():  # every hook: an unset one removes its stale files
+        part = hook.run(ds, run, cfg, splits, progress)
+        if part is not None:
+            metrics[hook.metrics_key] = part
     atomic_write_json(run.metrics_json, metrics)
     meta["files"] = run.unit_hashes(unit_files(run, list(fits)))
     from prt_torch.kernels import kernel_state

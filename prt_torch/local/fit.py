@@ -23,6 +23,7 @@ import torch
 
 from prt_torch.errors import check
 from prt_torch.fit.config import LocalConfig
+from prt_torch.fit.stages import FitHook
 from prt_torch.local.models import LocalVisibility, local_offsets, neighbour_pattern, sample_offsets
 
 #: frames per chunk when accumulating the linear normal equations / predicting
@@ -232,3 +233,17 @@ def train_local(ds: Any, run: Any, cfg: Any, splits: dict[str, Any], progress: A
             out[kind][name] = {"vis_rel_err": vis_rel_err(model.predict(sp.extra["positions"], sp.extra["frames"]),
                                                           sp.visibility)}
     return out
+
+
+def check_dataset(ds: Any, cfg: Any) -> None:
+    """``train.local`` needs a deformable (cloth) dataset: a one-line PrtError otherwise (``ds``: the
+    :class:`~prt_torch.bake.store.BakedDataset`, ``cfg``: the :class:`TrainConfig`)."""
+    from prt_torch.bake.deformable import is_deformable
+
+    check(is_deformable(ds.attrs), f"{ds.path}: train.local needs a deformable (cloth) dataset")
+
+
+#: ``prt train``'s ``train.local`` step (:data:`prt_torch.fit.stages.FIT_STAGES`): the local models learn from the
+#: splits' ``positions`` and ``frames``
+FIT_HOOK = FitHook(section="local", metrics_key="local", run=train_local, check=check_dataset,
+                   extra=("positions", "frames"))

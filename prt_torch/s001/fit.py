@@ -37,6 +37,7 @@ import numpy as np
 from prt_torch.bake.store import BakedDataset
 from prt_torch.errors import DamagedArtifact, PrtError, StaleArtifact, check
 from prt_torch.fit.config import S001Config, TrainConfig
+from prt_torch.fit.stages import FitHook
 from prt_torch.s001.posespace import CompressedTransfer, segment_bone_weights
 from prt_torch.rundir import RunDir, stage_key
 
@@ -305,3 +306,20 @@ def train_s001(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any = 
     data.meta["key"] = key
     data.save(path)
     return data.meta
+
+
+#: the entries of ``s001.npz``'s metadata that ``metrics.json`` records under ``s001``
+METRICS_KEYS = ("compression_ratio", "raw_bytes", "stored_bytes", "n_clusters", "train_rel_err_unquantised", "seconds")
+
+
+def fit_stage(ds: BakedDataset, run: RunDir, cfg: TrainConfig, splits: dict[str, Any],
+              progress: Any = None) -> dict[str, Any] | None:
+    """The :class:`~prt_torch.fit.stages.FitHook` call: :func:`train_s001` (it streams the store itself:
+    ``splits`` is not needed). Returns ``metrics.json``'s ``s001`` entry (:data:`METRICS_KEYS` of the metadata),
+    ``None`` without ``train.s001``."""
+    meta = train_s001(ds, run, cfg, progress)
+    return None if meta is None else {k: meta[k] for k in METRICS_KEYS}
+
+
+#: ``prt train``'s ``train.s001`` step (:data:`prt_torch.fit.stages.FIT_STAGES`)
+FIT_HOOK = FitHook(section="s001", metrics_key="s001", run=fit_stage)

@@ -35,6 +35,7 @@ from prt_torch.errors import MissingArtifact, check
 from prt_torch.fit.config import TrainConfig, TransferConfig
 from prt_torch.fit.folds import blocked_folds
 from prt_torch.fit.kinds import FitResult, Reduced, cv_train_only, fit_kinds, fit_ridge_kind, log_progress
+from prt_torch.fit.stages import FitHook
 from prt_torch.io import atomic_write_json
 from prt_torch.metrics import vis_rel_err
 from prt_torch.models import save_model
@@ -180,3 +181,15 @@ def train_transfer(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: An
     meta["files"] = run.unit_hashes(paths)
     atomic_write_json(run.transfer_json, meta)
     return metrics
+
+
+def fit_stage(ds: BakedDataset, run: RunDir, cfg: TrainConfig, splits: dict[str, SplitData],
+              progress: Any = None) -> dict[str, Any] | None:
+    """The :class:`~prt_torch.fit.stages.FitHook` call: :func:`train_transfer` (it reads its own arrays from the
+    store: ``splits`` is not needed). Returns ``metrics.json``'s ``transfer`` entry, ``None`` without
+    ``train.transfer``."""
+    return train_transfer(ds, run, cfg, progress)
+
+
+#: ``prt train``'s ``train.transfer`` step (:data:`prt_torch.fit.stages.FIT_STAGES`)
+FIT_HOOK = FitHook(section="transfer", metrics_key="transfer", run=fit_stage)
