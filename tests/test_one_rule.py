@@ -54,7 +54,7 @@ def test_evenly_spaced_indices() -> None:
 def test_recorded_config_and_deformable(synthetic_dataset: Path, tmp_path: Path) -> None:
     from prt_torch.bake.deformable import is_deformable
     from prt_torch.bake.store import BakedDataset, recorded_config
-    from prt_torch.cloth.export import is_deformable as run_is_deformable
+    from prt_torch.export.run import dataset_is_deformable as run_is_deformable
     from prt_torch.rundir import RunDir
 
     ds = BakedDataset(synthetic_dataset)

@@ -25,6 +25,7 @@ import numpy as np
 
 from prt_torch.cloth.deform_data import write_deform_data
 from prt_torch.errors import MissingArtifact, check
+from prt_torch.export.shippers import ExportRequest, InputGraph, ShipInputs, Shipment, Shipper
 from prt_torch.rundir import RunDir
 
 if TYPE_CHECKING:
@@ -64,18 +65,6 @@ def run_config(run: RunDir) -> RunConfig | None:
         return run.dataset().run_config()
     except MissingArtifact:
         return None
-
-
-def is_deformable(run: RunDir) -> bool:
-    """Whether the run's dataset is a deformable one (:func:`prt_torch.bake.deformable.is_deformable` of its attrs;
-    False without a dataset)."""
-    from prt_torch.bake.deformable import is_deformable as attrs_deformable
-
-    try:
-        attrs = dict(run.dataset().attrs)
-    except MissingArtifact:
-        return False
-    return attrs_deformable(attrs)
 
 
 def deform_spec(run: RunDir) -> DeformSpec:
@@ -263,3 +252,49 @@ def ship_deformable(run: RunDir, spec: DeformSpec, vis_graph: Any, held: dict[st
             "n_body_features": nb, "cloth_slice": [int(spec.cloth_slice.start or 0), int(spec.cloth_slice.stop)],
             "features_max_error": feat_err, "frames_max_error": frames_err,
             "parity": {**p.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes": path.stat().st_size}}
+
+
+# -- the export stage's hook (prt_torch.export.shippers.SHIPPERS) ----------------------------------------------
+def plan_stage(request: ExportRequest) -> Shipment:
+    """The export plan of a deformable run (nothing for the others): the deform data and the two positions-in
+    graphs; the spec is the caller's (``export_run(deform=)``) or :func:`deform_spec` of the run; the key records
+    :data:`DEFORMABLE_VERSION` and the body feature count."""
+    if not request.deformable:
+        return Shipment()
+    run = request.run
+    spec = request.deform if request.deform is not None else deform_spec(run)
+    return Shipment(files=(run.deform_path, run.positions_graph_path, run.positions_fused_path),
+                    key={"deformable": [DEFORMABLE_VERSION, spec.n_body_features]}, state=spec)
+
+
+def ship_stage(shipment: Shipment, inputs: ShipInputs) -> dict[str, Any] | None:
+    """:func:`ship_deformable` with the export's graphs and held-out frames: ``export.json``'s ``deformable``
+    entry (``None`` for a skinned run)."""
+    if shipment.state is None:
+        return None
+    out = ship_deformable(inputs.run, shipment.state, inputs.vis_graph, inputs.held, inputs.base_meta, inputs.rtol,
+                          opset=inputs.opset, exporter=inputs.exporter, lowered=dict(inputs.lowered),
+                          fused_graph=inputs.fused_graph, fused_inputs=inputs.fused_inputs)
+    inputs.log(f"  {inputs.run.positions_graph_path.name}: parity rel. error {out['parity']['rel_error']:.2e} "
+               f"(positions -> dihedral angles -> visibility)")
+    return out
+
+
+def input_graph(run: RunDir, vis_graph: Any, character: Any) -> InputGraph:
+    """The positions-in graph around another visibility graph, as the export ships it: from the run's deform data
+    (:class:`prt_torch.cloth.deform_data.DeformData`: edges, body feature count), example inputs the rest
+    vertices of ``character`` and zero body features."""
+    import torch
+
+    from prt_torch.cloth.deform_data import DeformData
+
+    d = DeformData.load(run.deform_path)
+    names = graph_input_names(d.n_body_features)
+    rest = torch.as_tensor(np.asarray(character.rest_vertices, np.float32))[None]
+    example = (rest, torch.zeros(1, d.n_body_features))[:len(names)]
+    return InputGraph(module=positions_graph_module(vis_graph, d.edges, d.n_body_features), names=names,
+                      example=example)
+
+
+#: ``prt export``'s deformable part (:data:`prt_torch.export.shippers.SHIPPERS`)
+SHIPPER = Shipper(name="deformable", plan=plan_stage, ship=ship_stage, input_graph=input_graph)

@@ -15,11 +15,14 @@ Writes into the run directory (file names: :class:`prt_torch.rundir.RunDir`):
 * the output bases in ``precision`` (:data:`prt_torch.export.graphs.PRECISIONS`) in the visibility and fused
   graphs;
 * one RPO file per named BRDF (loadable without torch), the cluster data of the vertex frames;
+* what the method packages ship (:data:`prt_torch.export.shippers.SHIPPERS`: the sphere blockers and the SHEXP
+  graph, the learned transfer graph, a deformable run's deform data and positions-in graphs, its local network),
+  each shipper giving its files, its part of the stage key and its ``export.json`` entry;
 * the export metadata: sizes, conventions, file names, parity errors, character hash - everything the
   player needs besides the character file.
 
-Up to date when the run's ``export`` stage key (model file hash + export settings) is unchanged and
-every file exists (:meth:`prt_torch.rundir.RunDir.is_current`) and verifies against the metadata.
+Up to date when the run's ``export`` stage key (model file hash + export settings + the shippers' parts) is
+unchanged and every file exists (:meth:`prt_torch.rundir.RunDir.is_current`) and verifies against the metadata.
 
 One committed unit: the stage first drops its ``stages.json`` key and stale temporaries
 (:meth:`RunDir.begin`), writes the frame data, the RPO files and the graphs (each atomically), then the
@@ -41,7 +44,9 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import ArtifactError, check
+from prt_torch.bake.deformable import is_deformable
+from prt_torch.errors import ArtifactError, MissingArtifact, check
+from prt_torch.export.shippers import ExportRequest, ShipInputs, merge_parts, shippers
 from prt_torch.io import atomic_write_json
 from prt_torch.metrics import evenly_spaced_indices
 from prt_torch.rundir import GRAPHS, RunDir, file_sha256, stage_key
@@ -100,6 +105,16 @@ def heldout_inputs(run: RunDir, n_max: int = 8) -> dict[str, np.ndarray]:
     rows = np.unique(rows[evenly_spaced_indices(rows.size, min(n_max, rows.size))])
     data = ds.rows(rows, ("pose", "frames", "positions"))
     return {k: np.asarray(v, dtype=np.float32) for k, v in data.items()} | {"rows": rows}
+
+
+def dataset_is_deformable(run: RunDir) -> bool:
+    """Whether the run's dataset is a deformable one (:func:`prt_torch.bake.deformable.is_deformable` of its attrs;
+    False without a dataset)."""
+    try:
+        attrs = dict(run.dataset().attrs)
+    except MissingArtifact:
+        return False
+    return is_deformable(attrs)
 
 
 def write_frame_data(run: RunDir, vertex_order: np.ndarray | None = None) -> Path:
@@ -171,9 +186,9 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         force: re-export even when the export is up to date (same model file and settings).
         precision: weight precision of the output bases (``"fp32"``, ``"fp16"``, ``"int8"``); models without
             per-cluster bases export in float32.
-        deform: a deformable run's :class:`prt_torch.cloth.export.DeformSpec` (``None``: built from the run
-            when its config has ``cloth:``, :func:`prt_torch.cloth.export.deform_spec`): ships the deform data
-            and the positions-in graph too.
+        deform: a deformable run's spec, handed to the shippers (:class:`~prt_torch.export.shippers.ExportRequest`;
+            cloth: a :class:`prt_torch.cloth.export.DeformSpec`; ``None``: built from the run when its dataset is
+            deformable): the deformable shipper ships the deform data and the positions-in graph too.
     """
     import torch
 
@@ -195,32 +210,16 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     mpath = model_path(run, kind)
     model = load_model(run, kind)
     model_hash = file_sha256(mpath)
-    from prt_torch.shexp.graph import (  # sphere blockers + SHEXP graph (issue 10)
-        SHEXP_GRAPH_VERSION,
-        blocker_count,
-        ship_shexp,
-    )
-
-    n_spheres = blocker_count(run)
-    from prt_torch.cloth.export import DEFORMABLE_VERSION, deform_spec, is_deformable
-
-    if deform is None and is_deformable(run):
-        deform = deform_spec(run)
-    deform_files = (run.deform_path, run.positions_graph_path, run.positions_fused_path) if deform is not None else ()
-    from prt_torch.local.graph import LOCAL_GRAPH_VERSION, shipped_local_kind
-
-    local_kind = shipped_local_kind(run) if deform is not None else None
-    local_files = (run.local_graph_path, run.local_data_path) if local_kind is not None else ()
-    key = stage_key({"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
-                     "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT, "blockers": n_spheres,
-                     "shexp_graph": SHEXP_GRAPH_VERSION, **_transfer_key(run),
-                     **({"int8_layout": INT8_LAYOUT} if precision == "int8" else {}),
-                     **({"deformable": [DEFORMABLE_VERSION, deform.n_body_features]} if deform is not None else {}),
-                     **({"local": [LOCAL_GRAPH_VERSION, local_kind, file_sha256(run.local_model_path(local_kind))]}
-                        if local_kind is not None else {})})
+    request = ExportRequest(run=run, precision=precision, opset=opset, exporter=exporter, deform=deform,
+                            deformable=deform is not None or dataset_is_deformable(run))
+    plans = [(s, s.plan(request)) for s in shippers()]  # the method parts (SHIPPERS), before anything is written
+    ship_files = tuple(f for _, plan in plans for f in plan.files)
+    core_key = {"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
+                "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT,
+                **({"int8_layout": INT8_LAYOUT} if precision == "int8" else {})}
+    key = stage_key(merge_parts(core_key, [plan.key for _, plan in plans], "export stage key"))
     outputs = (run.export_json, run.frames_path, *(run.graph_path(g) for g in GRAPHS),
-               *(run.rpo_path(b) for b in brdfs), run.blockers_path, run.shexp_path, *deform_files, *local_files,
-               *([run.transfer_graph_path] if run.transfer_json.is_file() else []))
+               *(run.rpo_path(b) for b in brdfs), *ship_files)
     if not force and run.is_current("export", key, outputs):
         try:
             return run.export_meta()
@@ -230,7 +229,7 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     character = run.character()
     check(character.num_vertices == model.n_vertices,
           f"model has {model.n_vertices} vertices but {run.character_path} has {character.num_vertices}")
-    check(deform is not None or character.feature_width == model.n_features,  # deformable: checked by the spec
+    check(request.deformable or character.feature_width == model.n_features,  # deformable: its shipper checks
           f"model takes {model.n_features} pose features but the character gives {character.feature_width}")
     order, V, A, C = model.order, model.n_vertices, model.n_features, model.n_coeffs
     held = heldout_inputs(run)
@@ -306,35 +305,15 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
                               "file_bytes": path.stat().st_size}
         if console is not None:
             console.print(f"  {path.name}: parity rel. error {p.rel_error:.2e} on {len(pose)} held-out poses")
-    shexp = ship_shexp(run, character, order, n_spheres, opset, base_meta)
-    from prt_torch.transfer.graph import ship_transfer  # learned transfer (seed 000), issue 12 item 6
-
-    transfer = ship_transfer(run, order * order, pose, base_meta, opset=opset, exporter=exporter)
-    if transfer is not None and console is not None:
-        console.print(f"  {run.transfer_graph_path.name}: parity rel. error {transfer['parity']['rel_error']:.2e}")
-    deformable = None
-    if deform is not None:  # a deformable run: the frame operator + the positions-in graph
-        from prt_torch.cloth.export import ship_deformable
-
-        deformable = ship_deformable(run, deform, vis_graph, held, base_meta, PARITY_RTOL_BY_PRECISION[precision],
-                                     opset=opset, exporter=exporter,
-                                     lowered=lowering(precision),
-                                     fused_graph=fused_graph, fused_inputs=fused_in)
-        if console is not None:
-            console.print(f"  {run.positions_graph_path.name}: parity rel. error "
-                          f"{deformable['parity']['rel_error']:.2e} (positions -> dihedral angles -> visibility)")
-    local = None
-    if local_kind is not None:  # the local visibility network the player runs instead of the per-cluster model
-        from prt_torch.local.graph import ship_local
-
-        local = ship_local(run, local_kind, held, base_meta, PARITY_RTOL_BY_PRECISION["fp32"], opset=opset,
-                           exporter=exporter)
-        if console is not None:
-            console.print(f"  {run.local_graph_path.name}: parity rel. error {local['parity']['rel_error']:.2e} "
-                          f"(local {local_kind}: neighbour offsets -> visibility)")
-    else:
-        run.local_graph_path.unlink(missing_ok=True)
-        run.local_data_path.unlink(missing_ok=True)
+    inputs = ShipInputs(run=run, character=character, order=order, opset=opset, exporter=exporter,
+                        precision=precision, rtol=PARITY_RTOL_BY_PRECISION[precision], lowered=lowering(precision),
+                        base_meta=base_meta, held=held, vis_graph=vis_graph, fused_graph=fused_graph,
+                        fused_inputs=fused_in, console=console)
+    shipped = {}
+    for shipper, plan in plans:
+        part = shipper.ship(plan, inputs)
+        if part is not None:
+            shipped[shipper.name] = part
     meta = {
         "format": FORMAT, "conventions": conventions, "below_horizon": below_horizon, "sh_order": order,
         "n_coeffs": C, "n_vertices": V, "n_features": A, "n_terms": n_terms, "model_kind": model.kind,
@@ -346,27 +325,14 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
         "inputs": {"visibility": ["pose"], "shading": list(SHADING_INPUTS), "fused": list(FUSED_INPUTS)},
         "brdfs": sorted(rpo_files), "rpo_files": rpo_files, "parity": parity,
         "parity_rows": held["rows"].tolist(), "export_seconds": time.perf_counter() - t0,
-        "model_file": run.relative(mpath), "shexp": shexp,
-        **({"deformable": deformable} if deformable is not None else {}),
-        **({"local": local} if local is not None else {}),
-        **({"transfer": transfer} if transfer is not None else {}),
+        "model_file": run.relative(mpath),
         "file_sha256": run.unit_hashes([run.frames_path, *(run.rpo_path(b) for b in rpo_files),
-                                        *(run.graph_path(g) for g in GRAPHS), run.blockers_path, run.shexp_path,
-                                        *deform_files, *local_files,
-                                        *([run.transfer_graph_path] if transfer else [])]),
+                                        *(run.graph_path(g) for g in GRAPHS), *ship_files]),
     }
+    meta = merge_parts(meta, [shipped], run.relative(run.export_json))
     atomic_write_json(run.export_json, meta)  # the commit record: written last
     run.mark_done("export", key)
     return meta
-
-
-def _transfer_key(run: RunDir) -> dict[str, Any]:
-    """The stage-key part of the learned transfer graph: ``transfer.json``'s sha256 (it records the models')."""
-    if not run.transfer_json.is_file():
-        return {}
-    from prt_torch.transfer.graph import TRANSFER_GRAPH_VERSION
-
-    return {"transfer": [file_sha256(run.transfer_json), TRANSFER_GRAPH_VERSION]}
 
 
 def per_cluster(model: Any) -> bool:

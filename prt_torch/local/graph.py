@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.export.shippers import ExportRequest, ShipInputs, Shipment, Shipper
 from prt_torch.rundir import RunDir
 
 #: version of the shipped local graph (part of the export key when one ships)
@@ -116,3 +117,38 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
             "bytes": int(initializer_bytes(path) + nb_bytes),
             "tables": "fp16" if fp16 else "fp32",
             "parity": {**p.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes": path.stat().st_size}}
+
+
+def plan_stage(request: ExportRequest) -> Shipment:
+    """The export plan: ``local.onnx`` and ``local.npz`` when a deformable run ships a local kind
+    (:func:`shipped_local_kind`); the key records :data:`LOCAL_GRAPH_VERSION`, the kind and its model's sha256."""
+    run = request.run
+    kind = shipped_local_kind(run) if request.deformable else None
+    if kind is None:
+        return Shipment()
+    from prt_torch.rundir import file_sha256
+
+    return Shipment(files=(run.local_graph_path, run.local_data_path),
+                    key={"local": [LOCAL_GRAPH_VERSION, kind, file_sha256(run.local_model_path(kind))]}, state=kind)
+
+
+def ship_stage(shipment: Shipment, inputs: ShipInputs) -> dict[str, Any] | None:
+    """:func:`ship_local` (float32 parity tolerance) of the plan's kind: ``export.json``'s ``local`` entry; without
+    one, ``None`` and the files an earlier export shipped are removed."""
+    run, kind = inputs.run, shipment.state
+    if kind is None:
+        run.local_graph_path.unlink(missing_ok=True)
+        run.local_data_path.unlink(missing_ok=True)
+        return None
+    from prt_torch.export.run import PARITY_RTOL_BY_PRECISION
+
+    local = ship_local(run, kind, inputs.held, inputs.base_meta, PARITY_RTOL_BY_PRECISION["fp32"],
+                       opset=inputs.opset, exporter=inputs.exporter)
+    inputs.log(f"  {run.local_graph_path.name}: parity rel. error {local['parity']['rel_error']:.2e} "
+               f"(local {kind}: neighbour offsets -> visibility)")
+    return local
+
+
+#: ``prt export``'s local visibility network, the player runs it instead of the per-cluster model
+#: (:data:`prt_torch.export.shippers.SHIPPERS`)
+SHIPPER = Shipper(name="local", plan=plan_stage, ship=ship_stage)

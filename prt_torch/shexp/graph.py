@@ -20,6 +20,7 @@ import torch
 from prt_torch.errors import MissingArtifact
 from prt_torch.export.onnx_file import export_onnx
 from prt_torch.export.parity import PARITY_RTOL, Parity, check_parity
+from prt_torch.export.shippers import ExportRequest, ShipInputs, Shipment, Shipper
 from prt_torch.rundir import RunDir
 from prt_torch.shexp.visibility import ShexpVisibility
 
@@ -119,3 +120,20 @@ def ship_shexp(run: RunDir, character: Any, order: int, n_spheres: int, opset: i
             "graph_file": run.relative(run.shexp_path), "inputs": list(SHEXP_INPUTS),
             "parity": {**par.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes":
                        path.stat().st_size}}
+
+
+def plan_stage(request: ExportRequest) -> Shipment:
+    """The export plan: the blockers file and the SHEXP graph, every run; the key records the sphere count
+    (:func:`blocker_count`) and :data:`SHEXP_GRAPH_VERSION`."""
+    n_spheres = blocker_count(request.run)
+    return Shipment(files=(request.run.blockers_path, request.run.shexp_path),
+                    key={"blockers": n_spheres, "shexp_graph": SHEXP_GRAPH_VERSION}, state=n_spheres)
+
+
+def ship_stage(shipment: Shipment, inputs: ShipInputs) -> dict[str, Any]:
+    """:func:`ship_shexp` with the plan's sphere count: ``export.json``'s ``shexp`` entry."""
+    return ship_shexp(inputs.run, inputs.character, inputs.order, shipment.state, inputs.opset, inputs.base_meta)
+
+
+#: ``prt export``'s sphere blockers + SHEXP graph (:data:`prt_torch.export.shippers.SHIPPERS`)
+SHIPPER = Shipper(name="shexp", plan=plan_stage, ship=ship_stage)

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import check
+from prt_torch.export.shippers import ExportRequest, ShipInputs, Shipment, Shipper
 from prt_torch.transfer.shading import ARRAYS, graph_outputs
 
 #: bumped when the graph's inputs / outputs change (part of ``prt export``'s stage key)
@@ -129,3 +130,31 @@ def ship_transfer(run: Any, n_light: int, pose: np.ndarray, base_meta: dict[str,
             "subsurface": params, "transfer_json_sha256": file_sha256(run.transfer_json),
             "shading": "albedo * (L . t) + albedo / mean(albedo) * (L . t_sss)",
             "version": TRANSFER_GRAPH_VERSION}
+
+
+def plan_stage(request: ExportRequest) -> Shipment:
+    """The export plan: the transfer graph when the run has a ``transfer.json``; the key records its sha256 (it
+    records the models') and :data:`TRANSFER_GRAPH_VERSION` (no part without one: the keys of runs exported
+    before the graph existed stay valid)."""
+    run = request.run
+    if not run.transfer_json.is_file():
+        return Shipment()
+    from prt_torch.rundir import file_sha256
+
+    return Shipment(files=(run.transfer_graph_path,),
+                    key={"transfer": [file_sha256(run.transfer_json), TRANSFER_GRAPH_VERSION]})
+
+
+def ship_stage(shipment: Shipment, inputs: ShipInputs) -> dict[str, Any] | None:
+    """:func:`ship_transfer` on the held-out poses (``n_light`` = the model's coefficient count): ``export.json``'s
+    ``transfer`` entry, ``None`` (a stale graph removed) without ``transfer.json``."""
+    run = inputs.run
+    transfer = ship_transfer(run, inputs.order * inputs.order, inputs.held["pose"], inputs.base_meta,
+                             opset=inputs.opset, exporter=inputs.exporter)
+    if transfer is not None:
+        inputs.log(f"  {run.transfer_graph_path.name}: parity rel. error {transfer['parity']['rel_error']:.2e}")
+    return transfer
+
+
+#: ``prt export``'s learned transfer graph, seed 000 (:data:`prt_torch.export.shippers.SHIPPERS`)
+SHIPPER = Shipper(name="transfer", plan=plan_stage, ship=ship_stage)
