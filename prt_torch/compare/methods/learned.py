@@ -11,7 +11,8 @@ shipped graph at the run's precision, ``export.json`` ``precision``), so the acc
 are rows of the same table.
 
 A DEFORMABLE run (``export.json`` has ``deformable``): every learned method runs the POSITIONS-IN graph (the shipped
-``positions.onnx``, or one exported here the same way, :func:`prt_torch.cloth.export.positions_graph_module`):
+``positions.onnx``, or one exported here the same way: the ``input_graph`` of the export shipper of ``deformable``,
+:func:`prt_torch.export.shippers.shipper_of`):
 positions -> dihedral angles -> model, so its time includes the features, as in ``prt play --sequence``.
 """
 
@@ -82,15 +83,15 @@ class Learned(MethodBase):
         model = run.run.model(self.kind)
         graph = VisibilityGraph(model, precision=prec).eval()
         if self.deform:  # positions -> dihedral angles [+ body features] -> the model, as the export ships it
-            from prt_torch.cloth.deform_data import DeformData
-            from prt_torch.cloth.export import graph_input_names, positions_graph_module
+            from prt_torch.errors import check
+            from prt_torch.export.shippers import shipper_of
 
-            d = DeformData.load(run.run.deform_path)
-            module = positions_graph_module(graph, d.edges, d.n_body_features)
-            names = graph_input_names(d.n_body_features)
-            rest = torch.as_tensor(np.asarray(run.character.rest_vertices, np.float32))[None]
-            args = [rest, torch.zeros(1, d.n_body_features)][:len(names)]
-            export_onnx(module, args, path, names, ("visibility",), {k: {0: "B"} for k in (*names, "visibility")},
+            build = shipper_of("deformable").input_graph  # the shipper of export.json's deformable entry
+            check(build is not None, "the deformable export shipper builds no positions-in graph")
+            wrapped = build(run.run, graph, run.character)
+            names = wrapped.names
+            export_onnx(wrapped.module, list(wrapped.example), path, names, ("visibility",),
+                        {k: {0: "B"} for k in (*names, "visibility")},
                         metadata={"prt.graph": "positions", "prt.model_kind": self.kind, "prt.precision": prec},
                         **lowering(prec))
             return path
