@@ -9,8 +9,8 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from prt_torch.player.deformable import DeformablePlayer
 
+from prt_torch.cloth.player import DeformablePlayer
 from prt_torch.rundir import RunDir
 from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
 

@@ -73,11 +73,11 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from prt_torch import limits
+    from prt_torch.cloth.player import DeformablePlayer
     from prt_torch.commands.roofline import bound, copy_bandwidth, gemm_rate, step_costs
     from prt_torch.errors import check
     from prt_torch.export.graphs import PRECISIONS
     from prt_torch.export.onnx_file import initializer_bytes, weight_macs
-    from prt_torch.cloth.player import DeformablePlayer
     from prt_torch.rundir import RunDir
 
     limits.check_int(args.frames, "--frames", 5, limits.MAX_FRAMES)

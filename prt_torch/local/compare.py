@@ -17,8 +17,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, register
-from prt_torch.local.soa import offsets_inputs
 from prt_torch.local.data import neighbour_dtype
+from prt_torch.local.soa import offsets_inputs
 
 
 class LearnedLocal(MethodBase):
@@ -32,8 +32,8 @@ class LearnedLocal(MethodBase):
         return run.run.local_model_path(cls.kind).is_file()
 
     def prepare(self, run: CompareRun, frames: FrameSet) -> None:
-        from prt_torch.local.soa import LocalOffsetsSoA
         from prt_torch.export.onnx_file import initializer_bytes
+        from prt_torch.local.soa import LocalOffsetsSoA
         from prt_torch.rundir import file_sha256
         from prt_torch.runtime.session import OrtGraph
 

@@ -198,8 +198,8 @@ def train_local(ds: Any, run: Any, cfg: Any, splits: dict[str, Any], progress: A
     whose file is missing or stale (its recorded :func:`local_key`), write it atomically, and return the metrics
     ``{kind: {fit_s, bytes, train, heldout}}``; without ``train.local`` stale local files are removed (``None``)."""
     from prt_torch.errors import DamagedArtifact, StaleArtifact
-    from prt_torch.metrics import vis_rel_err
     from prt_torch.local.models import LOCAL_KINDS, load_local, save_local
+    from prt_torch.metrics import vis_rel_err
 
     lcfg: LocalConfig | None = cfg.local
     for k in LOCAL_KINDS:

@@ -81,11 +81,11 @@ def ship_local(run: RunDir, kind: str, held: dict[str, np.ndarray], base_meta: d
     ``held`` (``positions (F, V, 3)``, ``frames (F, V, 3, 3)``). Returns the ``export.json`` ``local`` entry."""
     import torch
 
-    from prt_torch.local.soa import LocalOffsetsSoA, offsets_inputs
-    from prt_torch.local.data import write_neighbours
     from prt_torch.export.onnx_file import initializer_bytes
     from prt_torch.export.parity import check_parity
+    from prt_torch.local.data import write_neighbours
     from prt_torch.local.models import load_local, local_offsets
+    from prt_torch.local.soa import LocalOffsetsSoA, offsets_inputs
     from prt_torch.rundir import file_sha256
 
     mpath = run.local_model_path(kind)

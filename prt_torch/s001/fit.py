@@ -38,8 +38,8 @@ from prt_torch.bake.store import BakedDataset
 from prt_torch.errors import DamagedArtifact, PrtError, StaleArtifact, check
 from prt_torch.fit.config import S001Config, TrainConfig
 from prt_torch.fit.stages import FitHook
-from prt_torch.s001.posespace import CompressedTransfer, segment_bone_weights
 from prt_torch.rundir import RunDir, stage_key
+from prt_torch.s001.posespace import CompressedTransfer, segment_bone_weights
 
 ARRAY = "transfer_matrix"
 

@@ -53,11 +53,11 @@ class S001RunPlayer(Player):
                  **_: Any) -> None:
         from prt_torch.brdf.matrix import brdf_matrix, factor
         from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
-        from prt_torch.s001.posespace import CompressedTransfer
         from prt_torch.player.lighting import load_lighting
         from prt_torch.player.posing import Poser
-        from prt_torch.s001.player import S001Player
         from prt_torch.rundir import RunDir
+        from prt_torch.s001.player import S001Player
+        from prt_torch.s001.posespace import CompressedTransfer
 
         run = RunDir.of(run_dir)
         if not run.s001.is_file():

@@ -51,13 +51,13 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.blockers import SphereSet, pose_spheres
     from prt_torch.commands import _validate as V
     from prt_torch.compare.methods import METHODS
-    from prt_torch.shexp.compare import frame_skins
     from prt_torch.compare.run import heldout_frames, load_compare_run
     from prt_torch.errors import check
-    from prt_torch.shexp.graph import export_shexp
     from prt_torch.scene.ground import make_ground
     from prt_torch.scene.occluders import ShexpGraph
     from prt_torch.shexp import shexp_visibility
+    from prt_torch.shexp.compare import frame_skins
+    from prt_torch.shexp.graph import export_shexp
 
     limits.check_int(args.frames, "--frames", 1, 10_000)
     limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)

@@ -74,8 +74,8 @@ class Shexp(MethodBase):
         self.skins = frame_skins(run, frames)
         if shipped:
             from prt_torch.export.onnx_file import initializer_bytes
-            from prt_torch.shexp.graph import export_shexp, is_current
             from prt_torch.runtime.session import OrtGraph
+            from prt_torch.shexp.graph import export_shexp, is_current
 
             self.spheres = SphereSet.load(rd.blockers_path)
             path, how = rd.shexp_path, "shipped"
@@ -91,8 +91,8 @@ class Shexp(MethodBase):
         else:
             import torch
 
-            from prt_torch.shexp.graph import blocker_count
             from prt_torch.shexp import ShexpVisibility
+            from prt_torch.shexp.graph import blocker_count
 
             self.spheres = fit_spheres(run.character, blocker_count(run.dataset.attrs))
             self.graph = None

@@ -30,8 +30,8 @@ import numpy as np
 
 from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, register
 from prt_torch.errors import DamagedArtifact, check
-from prt_torch.transfer.shading import ARRAYS, light_dot, light_input, transfer_shading
 from prt_torch.shapes import check_shape
+from prt_torch.transfer.shading import ARRAYS, light_dot, light_input, transfer_shading
 
 ARRAY = "transfer"
 SSS = "subsurface"

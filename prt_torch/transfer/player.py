@@ -22,12 +22,12 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError, check
-from prt_torch.transfer.shading import ARRAYS, light_input, radiance_output, transfer_shading
 from prt_torch.player.player import Player
 from prt_torch.player.timing import FrameTimer
 from prt_torch.rundir import RunDir
 from prt_torch.runtime.session import OrtGraph
 from prt_torch.shapes import check_shape
+from prt_torch.transfer.shading import ARRAYS, light_input, radiance_output, transfer_shading
 
 
 class TransferPlayer(Player):

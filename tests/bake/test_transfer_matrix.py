@@ -13,9 +13,9 @@ pytest.importorskip("embreex")
 
 from prt_torch.bake.embree import RayScene  # noqa: E402
 from prt_torch.bake.trace import RaySet, trace_frame  # noqa: E402
-from prt_torch.s001.bake import exit_term_rows, transfer_matrices  # noqa: E402
 from prt_torch.brdf.factor import hemisphere_rule  # noqa: E402
 from prt_torch.errors import PrtError  # noqa: E402
+from prt_torch.s001.bake import exit_term_rows, transfer_matrices  # noqa: E402
 from prt_torch.sh.basis import sh_basis  # noqa: E402
 from prt_torch.sh.quadrature import hemisphere_directions, random_rotations, sphere_quadrature  # noqa: E402
 

@@ -374,8 +374,8 @@ def test_cape_ships_the_local_network(cape_run: Path) -> None:
     """``train.local.default: mlp``: prt export ships local.onnx + local.npz; the player's visibility (numpy
     offsets in its own frames, then onnxruntime) is the torch model's on the baked frames, split and pipeline play
     the same radiance, and the fused graph mode is a one-line error."""
-    from prt_torch.local.models import load_local
     from prt_torch.cloth.player import DeformablePlayer
+    from prt_torch.local.models import load_local
 
     code, err = prt("export", str(cape_run))
     assert code == 0, err

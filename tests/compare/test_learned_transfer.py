@@ -79,8 +79,8 @@ def _closed_form_irradiance(normals: np.ndarray, light: np.ndarray) -> np.ndarra
 def test_shading_matches_closed_form_irradiance() -> None:
     """``transfer_radiance`` of unoccluded transfer vectors ``int max(n.w, 0)/pi y(w) dw`` (numerical quadrature on
     a dense spherical-Fibonacci set) is ``albedo * E(n) / pi`` of the closed-form irradiance."""
-    from prt_torch.transfer.compare import transfer_radiance
     from prt_torch.sh.basis import sh_basis
+    from prt_torch.transfer.compare import transfer_radiance
 
     rng = np.random.default_rng(1)
     n = 200_000
@@ -299,8 +299,8 @@ def test_play_transfer_command_without_torch(tiny_run: Path, exported: dict[str,
 
 
 def test_transfer_bad_input_is_one_line(tiny_run: Path, exported: dict[str, Any]) -> None:
-    from prt_torch.transfer.shading import subsurface_tint, transfer_shading
     from prt_torch.transfer.player import TransferPlayer
+    from prt_torch.transfer.shading import subsurface_tint, transfer_shading
 
     cases = [
         (lambda: transfer_shading(np.zeros((2, 3)), {"a": np.ones(3)}), "radiance must be"),

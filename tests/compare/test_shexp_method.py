@@ -70,11 +70,11 @@ def test_matches_embree_on_the_posed_spheres(setup) -> None:  # noqa: ANN001
     pytest.importorskip("embreex")
     from prt_torch.bake.embree import RayScene
     from prt_torch.blockers import pose_spheres
-    from prt_torch.shexp.compare import Shexp
     from prt_torch.sh.product import sh_product
     from prt_torch.sh.project import project
     from prt_torch.sh.quadrature import sphere_directions
     from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
+    from prt_torch.shexp.compare import Shexp
 
     h = zh_to_sh(hemisphere_zh(ORDER), np.array([0.0, 0.0, 1.0]))
     ctx, fs = setup

@@ -51,9 +51,9 @@ def test_vertex_last_dihedral_graph_is_the_numpy_rule() -> None:
     strongly folded random sheet, rigidly moved, in float32, including sharp folds near +-pi."""
     import torch
 
+    from prt_torch.cloth.export import position_features_module
     from prt_torch.deform.dihedral import dihedral_angles
     from prt_torch.deform.mesh import interior_edges
-    from prt_torch.cloth.export import position_features_module
 
     rest, faces = flag_mesh(9, 7)
     edges = interior_edges(faces)
@@ -72,8 +72,8 @@ def test_vertex_last_dihedral_graph_is_the_numpy_rule() -> None:
 
 def test_deform_data_round_trip_gives_the_bake_frames(deformable_run) -> None:
     """The shipped frame operator (deform.npz) gives exactly the frames of one rebuilt from the rest mesh."""
-    from prt_torch.deform.frames import FrameOperator
     from prt_torch.cloth.deform_data import DeformData
+    from prt_torch.deform.frames import FrameOperator
     from prt_torch.rundir import RunDir
 
     run_dir, spec = deformable_run

@@ -40,9 +40,9 @@ def test_cpca_with_one_cluster_is_scikit_learn_pca() -> None:
 
 
 def test_stored_sampled_poses_match_the_bake(run: Path) -> None:
-    from prt_torch.s001.posespace import CompressedTransfer
-    from prt_torch.s001.player import S001Player
     from prt_torch.rundir import RunDir
+    from prt_torch.s001.player import S001Player
+    from prt_torch.s001.posespace import CompressedTransfer
 
     data = CompressedTransfer.load(RunDir(run).s001)
     m = data.meta
@@ -63,9 +63,9 @@ def test_stored_sampled_poses_match_the_bake(run: Path) -> None:
 
 
 def test_heldout_interpolation_beats_the_mean_pose(run: Path) -> None:
-    from prt_torch.s001.posespace import CompressedTransfer
-    from prt_torch.s001.player import S001Player
     from prt_torch.rundir import RunDir
+    from prt_torch.s001.player import S001Player
+    from prt_torch.s001.posespace import CompressedTransfer
 
     ds = RunDir(run).dataset()
     data = CompressedTransfer.load(RunDir(run).s001)
@@ -86,8 +86,8 @@ def test_heldout_interpolation_beats_the_mean_pose(run: Path) -> None:
 def test_train_again_keeps_a_current_file(run: Path, s001_run: tuple[Path, Path]) -> None:
     from prt_torch.bake.store import BakedDataset
     from prt_torch.config import load_config
-    from prt_torch.s001.fit import s001_key, train_s001
     from prt_torch.rundir import RunDir
+    from prt_torch.s001.fit import s001_key, train_s001
 
     cfg = load_config(s001_run[0])
     rd = RunDir(run)
@@ -114,9 +114,9 @@ def test_train_again_keeps_a_current_file(run: Path, s001_run: tuple[Path, Path]
 def test_bad_input_is_one_line(run: Path, synthetic_dataset: Path) -> None:
     from prt_torch.bake.store import open_dataset
     from prt_torch.fit.config import S001Config
+    from prt_torch.rundir import RunDir
     from prt_torch.s001.fit import fit_s001
     from prt_torch.s001.posespace import CompressedTransfer
-    from prt_torch.rundir import RunDir
 
     skin = (np.array([-1, 0]), np.zeros((1, 1), int), np.ones((1, 1)))
     with pytest.raises(PrtError, match="transfer_matrix") as e:  # a store baked without transfer matrices

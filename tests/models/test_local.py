@@ -19,7 +19,6 @@ from scipy.spatial.transform import Rotation
 
 from prt_torch.deform.clusters import spatial_clusters
 from prt_torch.deform.frames import FrameOperator
-from prt_torch.local.soa import LocalOffsetsSoA, offsets_inputs
 from prt_torch.errors import PrtError
 from prt_torch.fit.config import LocalConfig
 from prt_torch.local.fit import fit_local, fit_local_linear
@@ -31,6 +30,7 @@ from prt_torch.local.models import (
     sample_offsets,
     save_local,
 )
+from prt_torch.local.soa import LocalOffsetsSoA, offsets_inputs
 from tests.deform.sheets import sheet
 from tests.tolerance import assert_bitwise
 
@@ -199,9 +199,9 @@ def test_head_runs_the_same_in_onnxruntime(tmp_path: Path, waving_sheet: dict[st
 def test_fp16_tables_are_stored_exactly(tmp_path: Path, waving_sheet: dict[str, np.ndarray]) -> None:
     """Tables on the float16 grid (as fits leave them) are stored in float16: fewer bytes, onnxruntime still equal
     to torch; tables off the grid stay float32."""
-    from prt_torch.local.graph import table_lowering
     from prt_torch.export.onnx_file import export_onnx, initializer_bytes
     from prt_torch.local.fit import to_fp16_grid
+    from prt_torch.local.graph import table_lowering
     from prt_torch.runtime.session import OrtGraph
 
     w = waving_sheet

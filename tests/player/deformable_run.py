@@ -61,10 +61,10 @@ def build_deformable_run(base: Path, nx: int = NX, nz: int = NZ, order: int = OR
     import zarr
 
     from prt_torch.bake.deformable import frame_operator
+    from prt_torch.cloth.export import DeformSpec
     from prt_torch.cloth.inputs import cloth_features
     from prt_torch.deform.clusters import spatial_clusters
     from prt_torch.deform.mesh import interior_edges
-    from prt_torch.cloth.export import DeformSpec
     from prt_torch.fit.config import TrainConfig
     from prt_torch.fit.train import train_dataset
     from prt_torch.rig.vertex_frames import cluster_axes

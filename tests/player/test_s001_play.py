@@ -23,9 +23,9 @@ def test_play_radiance_is_shade_matrix_of_interpolated_matrices(s001_run: tuple[
     from prt_torch.brdf.matrix import brdf_matrix, factor
     from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.player.lighting import load_lighting
-    from prt_torch.s001.renderer import S001RunPlayer
     from prt_torch.rig.vertex_frames import vertex_frames
     from prt_torch.rundir import RunDir
+    from prt_torch.s001.renderer import S001RunPlayer
     from prt_torch.s001.shading import shade_matrix
 
     _, run = s001_run

@@ -11,12 +11,12 @@ from prt_torch.brdf.factor import hemisphere_rule, tabulate
 from prt_torch.brdf.matrix import brdf_matrix, factor
 from prt_torch.brdf.rpo import build_rpo
 from prt_torch.errors import PrtError
+from prt_torch.s001.shading import shade_matrix
 from prt_torch.sh.basis import sh_basis
 from prt_torch.sh.quadrature import hemisphere_directions, random_rotations
 from prt_torch.sh.rotation import sh_rotation
 from prt_torch.sh.zonal import hemisphere_zh, zh_to_sh
 from prt_torch.shade.rpo_shading import shade_rpo
-from prt_torch.s001.shading import shade_matrix
 
 N = 4
 

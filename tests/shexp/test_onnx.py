@@ -13,9 +13,9 @@ pytest.importorskip("onnxruntime")
 def test_onnx_matches_torch(tmp_path: Path) -> None:
     below = "zero"
     from prt_torch.export.onnx_file import read_metadata
-    from prt_torch.shexp.graph import SHEXP_INPUTS, example_inputs, export_shexp, shexp_parity
     from prt_torch.runtime.session import OrtGraph
     from prt_torch.shexp import shexp_visibility
+    from prt_torch.shexp.graph import SHEXP_INPUTS, example_inputs, export_shexp, shexp_parity
 
     path = export_shexp(tmp_path / "shexp.onnx", 3, below_horizon=below)
     meta = read_metadata(path)
