@@ -41,11 +41,15 @@ class DeformableSource:
             cache lacks), before the plan; :func:`prt_torch.bake.runner.run_bake` calls it before anything else.
         plan: ``plan(cfg)``: the run's :class:`~prt_torch.bake.plan.BakePlan` with ``positions (F, V, 3)``
             float32 set (the frames traced as they are) and the identity ``skin (F, 1, 4, 4)``.
+        read: ``read(cfg, name)``: one named sequence as ``prt compare --clip`` poses it, an object with
+            ``positions (T, V, 3)`` float32 and ``features (T, A)`` float32 (the dataset's ``pose`` column); a
+            missing sequence or cache is a one-line PrtError.
     """
 
     section: str
     prepare: Callable[[RunConfig, bool], object]
     plan: Callable[[RunConfig], BakePlan]
+    read: Callable[[RunConfig, str], Any]
 
 
 #: the deformable subject sources: method package -> its :class:`DeformableSource` (``()``: none)

@@ -172,4 +172,10 @@ def make_deformable_plan(cfg: RunConfig, subject: Any | None = None, cache: Any 
 
 
 #: the cloth's entry of :data:`prt_torch.bake.deformable.SUBJECTS` (a run with a ``cloth:`` section)
-SOURCE = DeformableSource(section="cloth", prepare=ensure_simulated, plan=make_deformable_plan)
+def read_sequence(cfg: RunConfig, name: str) -> CachedSequence:
+    """The cached sequence ``name`` of the run config ``cfg`` (its subject and vertex cache), for ``prt compare
+    --clip``: :func:`sequence_frames`."""
+    return sequence_frames(cfg, load_subject(cfg), open_cache(cfg), name)
+
+
+SOURCE = DeformableSource(section="cloth", prepare=ensure_simulated, plan=make_deformable_plan, read=read_sequence)

@@ -92,17 +92,18 @@ def clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> Fr
 
 def deformable_clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> FrameSet:
     """A cached sequence of a deformable (cloth) run, positions and features from the source its config selects
-    (:func:`prt_torch.compare.sequences.sequence_source`), frames by the bake's rule
+    (:attr:`prt_torch.bake.deformable.DeformableSource.read`), frames by the bake's rule
     (:func:`~prt_torch.bake.deformable.posed_frames` with the dataset's clusters); ``max_frames``: evenly spaced
     subset."""
-    from prt_torch.bake.deformable import frame_operator, posed_frames
-    from prt_torch.compare.sequences import sequence_source
+    from prt_torch.bake.deformable import frame_operator, posed_frames, source_of
 
     ds = ctx.dataset
     cfg = ds.run_config()  # validated (prt_torch.bake.store.recorded_run_config)
     check(cfg is not None, f"{ds.path}: records no run config (a deformable run's sequences need it)")
     cfg.run_dir = ctx.run.path
-    seq = sequence_source(cfg).read(cfg, clip)
+    source = source_of(cfg)
+    check(source is not None, f"{ds.path}: its recorded config selects no deformable source")
+    seq = source.read(cfg, clip)
     check(seq.positions.shape[1] == ctx.character.num_vertices,
           f"sequence {clip!r}: {seq.positions.shape[1]} vertices, the run's character {ctx.character.num_vertices}")
     idx = evenly_spaced(len(seq.positions), max_frames if max_frames is not None else len(seq.positions))

@@ -13,8 +13,9 @@
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from prt_torch.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from prt_torch.heightfield.horizon import horizon_angles, max_pyramid, wedge_azimuths
@@ -33,26 +34,18 @@ if TYPE_CHECKING:
     from prt_torch.heightfield.wedges import WedgeTable, canonical_wedge
     from prt_torch.heightfield.zrotation import ZRotator, zyz_angles
 
-#: exported name -> its submodule, imported on first access (module ``__getattr__``, PEP 562): importing one
-#: submodule (a ``prt`` command or bench module, a stage hook) runs this package without importing torch
-_LAZY: dict[str, str] = {
-    "horizon_angles": "prt_torch.heightfield.horizon",
-    "max_pyramid": "prt_torch.heightfield.horizon",
-    "wedge_azimuths": "prt_torch.heightfield.horizon",
-    "HeightFieldFrame": "prt_torch.heightfield.surface",
-    "Terrain": "prt_torch.heightfield.surface",
-    "Waves": "prt_torch.heightfield.surface",
-    "grid_faces": "prt_torch.heightfield.surface",
-    "grid_frames": "prt_torch.heightfield.surface",
-    "grid_normals": "prt_torch.heightfield.surface",
-    "make_frame": "prt_torch.heightfield.surface",
-    "make_generator": "prt_torch.heightfield.surface",
-    "truth_visibility": "prt_torch.heightfield.truth",
-    "HeightFieldVisibility": "prt_torch.heightfield.visibility",
-    "WedgeTable": "prt_torch.heightfield.wedges",
-    "canonical_wedge": "prt_torch.heightfield.wedges",
-    "ZRotator": "prt_torch.heightfield.zrotation",
-    "zyz_angles": "prt_torch.heightfield.zrotation",
+#: submodule -> the names exported from it, imported on first access (:func:`prt_torch.lazy.lazy_exports`):
+#: importing one submodule (a ``prt`` command or bench module, a stage hook) runs this package without torch
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    "prt_torch.heightfield.horizon": ("horizon_angles", "max_pyramid", "wedge_azimuths"),
+    "prt_torch.heightfield.surface": (
+        "HeightFieldFrame", "Terrain", "Waves", "grid_faces", "grid_frames", "grid_normals", "make_frame",
+        "make_generator",
+    ),
+    "prt_torch.heightfield.truth": ("truth_visibility",),
+    "prt_torch.heightfield.visibility": ("HeightFieldVisibility",),
+    "prt_torch.heightfield.wedges": ("WedgeTable", "canonical_wedge"),
+    "prt_torch.heightfield.zrotation": ("ZRotator", "zyz_angles"),
 }
 
 __all__ = [
@@ -75,16 +68,4 @@ __all__ = [
     "zyz_angles",
 ]
 
-
-def __getattr__(name: str) -> Any:
-    """The exports, imported on first access (``from prt_torch.heightfield import X`` works as before)."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
+lazy_exports(__name__, _EXPORTS)

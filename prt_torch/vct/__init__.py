@@ -9,10 +9,9 @@ from the BRDF lobes (eq. 5-6 aperture, 7 sub-cones by circle packing, Fig. 4) an
 
 from __future__ import annotations
 
-import importlib
-import sys
-import types
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from prt_torch.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from prt_torch.vct.cones import ConeSet, cone_aperture, cone_sharpness, pack_lobe_cones, peak_cones
@@ -22,53 +21,19 @@ if TYPE_CHECKING:
     from prt_torch.vct.visibility import ConeTracer
     from prt_torch.vct.voxelize import is_closed_mesh, voxelize
 
-#: exported name -> its submodule, imported on first access (module ``__getattr__``, PEP 562): importing one
-#: submodule (a ``prt`` command or bench module, a stage hook) runs this package without importing torch
-_LAZY: dict[str, str] = {
-    "ConeSet": "prt_torch.vct.cones",
-    "cone_aperture": "prt_torch.vct.cones",
-    "cone_sharpness": "prt_torch.vct.cones",
-    "pack_lobe_cones": "prt_torch.vct.cones",
-    "peak_cones": "prt_torch.vct.cones",
-    "VoxelGrid": "prt_torch.vct.grid",
-    "fit_grid": "prt_torch.vct.grid",
-    "OpacityPyramid": "prt_torch.vct.pyramid",
-    "build_pyramid": "prt_torch.vct.pyramid",
-    "TraceSettings": "prt_torch.vct.trace",
-    "trace_cones": "prt_torch.vct.trace",
-    "ConeTracer": "prt_torch.vct.visibility",
-    "is_closed_mesh": "prt_torch.vct.voxelize",
-    "voxelize": "prt_torch.vct.voxelize",
+#: submodule -> the names exported from it, imported on first access (:func:`prt_torch.lazy.lazy_exports`):
+#: importing one submodule (a ``prt`` command or bench module, a stage hook) runs this package without torch
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    "prt_torch.vct.cones": ("ConeSet", "cone_aperture", "cone_sharpness", "pack_lobe_cones", "peak_cones"),
+    "prt_torch.vct.grid": ("VoxelGrid", "fit_grid"),
+    "prt_torch.vct.pyramid": ("OpacityPyramid", "build_pyramid"),
+    "prt_torch.vct.trace": ("TraceSettings", "trace_cones"),
+    "prt_torch.vct.visibility": ("ConeTracer",),
+    "prt_torch.vct.voxelize": ("is_closed_mesh", "voxelize"),
 }
 
 __all__ = ["ConeSet", "ConeTracer", "OpacityPyramid", "TraceSettings", "VoxelGrid", "build_pyramid",
            "cone_aperture", "cone_sharpness", "fit_grid", "is_closed_mesh", "pack_lobe_cones", "peak_cones",
            "trace_cones", "voxelize"]
 
-
-def __getattr__(name: str) -> Any:
-    """The exports, imported on first access (``from prt_torch.vct import X`` works as before)."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
-
-
-class _Package(types.ModuleType):
-    """This package, keeping an export whose name is also its submodule's (``voxelize``): importing the submodule
-    binds the module on the package, and the export (the function of the same name) is kept instead, as the eager
-    ``from prt_torch.vct.voxelize import voxelize`` did."""
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if isinstance(value, types.ModuleType) and _LAZY.get(name) == value.__name__:
-            value = getattr(value, name)
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
+lazy_exports(__name__, _EXPORTS)

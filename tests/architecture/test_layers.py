@@ -38,7 +38,7 @@ PKG = Path(__file__).resolve().parents[2] / "prt_torch"
 #: modules) rank with ``config``: they are plain pydantic models every stage reads
 RANKS: dict[str, int] = {
     "__init__": 0, "errors": 0, "shapes": 0, "io": 0, "runtime": 0, "rundir": 0, "config": 0, "limits": 0,
-    "kernels": 0, "exact": 0, "plugins": 0,
+    "kernels": 0, "exact": 0, "plugins": 0, "lazy": 0,
     "conventions": 0, "progress": 0,
     "sh": 1,
     "light": 2, "brdf": 2,
@@ -455,7 +455,6 @@ EXPECTED_TABLES = frozenset({
     "prt_torch.player.renderers:RENDERERS",
     "prt_torch.player.sources:VISIBILITY_SOURCES",
     "prt_torch.compare.methods:COMPARE_METHODS",
-    "prt_torch.compare.sequences:SEQUENCES",
 })
 
 
