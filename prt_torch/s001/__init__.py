@@ -7,6 +7,7 @@
 * :mod:`~prt_torch.s001.quantize`: 16-bit quantisation of the compressed coefficients;
 * :mod:`~prt_torch.s001.fit`: the ``train.s001`` stage -> ``s001.npz`` (the fit-stage hook);
 * :mod:`~prt_torch.s001.posespace`: pose-space interpolation (cKDTree nearest poses, NRBF eq. 6, eq. 7);
+* :mod:`~prt_torch.s001.brdf_matrix`: the BRDF matrix ``B (C, C)`` (view SH x light SH) and its SVD factors;
 * :mod:`~prt_torch.s001.shading`: eq. 5 shading ``Gamma = V^T B T L`` with the factored BRDF matrix;
 * :mod:`~prt_torch.s001.player`, :mod:`~prt_torch.s001.renderer`: the run-time player (eq. 8-9, numpy) and the
   ``prt play --renderer s001|posespace`` renderer (the play hook);

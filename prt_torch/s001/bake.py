@@ -28,7 +28,7 @@ transferred incident radiance ``l_local = T @ L`` (local-frame SH, ``C``)::
   :mod:`prt_torch.bake.subsurface`) enters ``T`` as the uniform incident radiance over the upper hemisphere
   that a white Lambertian surface reflects as exactly ``s . L``: ``k = h / (c . h)`` with ``h`` the local SH
   of the upper-hemisphere indicator and ``c`` those of ``max(cos, 0) / pi`` (so ``c . k = 1`` and the
-  Lambertian BRDF matrix, :func:`prt_torch.brdf.matrix.brdf_matrix`, gives ``y(wo)^T B k = 1``). A BRDF
+  Lambertian BRDF matrix, :func:`prt_torch.s001.brdf_matrix.brdf_matrix`, gives ``y(wo)^T B k = 1``). A BRDF
   matrix of another BRDF weights the term by its response to uniform light (its albedo, up to truncation).
 
 numpy only, float32 results; no Python loop over vertices or rays.

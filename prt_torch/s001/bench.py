@@ -4,7 +4,7 @@ On the run's held-out frames (the baked pose features, positions and vertex fram
 frame (the machine is shared: only side-by-side ratios and medians mean anything):
 
 * ``s001``: :class:`prt_torch.s001.player.S001Player` (numpy) radiance for ONE BRDF (Lambert, the factored BRDF
-  matrix, :mod:`prt_torch.brdf.matrix`) in eq. 9's order, with its parts timed separately on the same frames:
+  matrix, :mod:`prt_torch.s001.brdf_matrix`) in eq. 9's order, with its parts timed separately on the same frames:
   ``s001_weights`` (per-segment k-d tree + NRBF + eq. 7 coefficients), ``s001_rotations`` (segment rotations and
   the per-segment lighting);
 * ``posespace``: the same player and data with the global neighbours;
@@ -36,13 +36,13 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from prt_torch import limits
-    from prt_torch.brdf.matrix import brdf_matrix, factor
     from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.commands import _validate as V
     from prt_torch.compare.methods import METHODS
     from prt_torch.compare.run import heldout_frames, load_compare_run
     from prt_torch.errors import check
     from prt_torch.player.lighting import load_lighting
+    from prt_torch.s001.brdf_matrix import brdf_matrix, factor
     from prt_torch.s001.player import S001Player
     from prt_torch.s001.posespace import CompressedTransfer
     from prt_torch.scoring.images import player_camera

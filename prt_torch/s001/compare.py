@@ -5,7 +5,7 @@ Per frame, :class:`prt_torch.s001.player.S001Player` (numpy) interpolates the 16
 ``s001``: per segment from the normalized-cut group of the nearest sampled pose under the bone-weighted distance;
 ``posespace``: the same compressed data from the nearest sampled poses of the whole body, Table 3's baseline) and
 shades in eq. 9's order with the compared lighting's SH (``lighting.sh``) and each compared analytic BRDF as
-``B = brdf_matrix(brdf)``, ``H, G = factor(B, 4)`` (:mod:`prt_torch.brdf.matrix`), times the BRDF's tint: the same
+``B = brdf_matrix(brdf)``, ``H, G = factor(B, 4)`` (:mod:`prt_torch.s001.brdf_matrix`), times the BRDF's tint: the same
 rule as :func:`prt_torch.s001.shading.shade_matrix` (checked against it in tests/compare/test_s001_method.py).
 
 What the harness scores: radiance against ``sh_truth`` shaded on the shipping path (shadowed direct light only),
@@ -61,7 +61,7 @@ class S001(MethodBase):
 
     def _setup(self, shading: RadianceRequest) -> None:
         """BRDF factors and the lighting (first call = the harness's untimed warm-up), then the truth scores."""
-        from prt_torch.brdf.matrix import brdf_matrix, factor
+        from prt_torch.s001.brdf_matrix import brdf_matrix, factor
 
         order = self.player.order
         if not self.factors:

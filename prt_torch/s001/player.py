@@ -3,7 +3,7 @@
 Numpy (+ scipy's k-d tree through :mod:`prt_torch.s001.posespace`); no torch in this module.
 
 Shading (eq. 5): ``Gamma = V^T B T L`` with ``B = H G^T`` (``H, G (C, n_t)``, the SVD factors of the SH-projected
-BRDF matrix, :mod:`prt_torch.brdf.matrix`), ``V = y(w_o)`` the SH basis at the local view direction
+BRDF matrix, :mod:`prt_torch.s001.brdf_matrix`), ``V = y(w_o)`` the SH basis at the local view direction
 (``w_o = frames @ normalize(eye - p)``, frames rows ``t, b, n``), ``T (C, C)`` the local-frame transfer matrix and
 ``L (C, 3)`` the global SH lighting (RGB). With ``T = M_m + sum_i lambda_i U_i`` (cluster ``m``'s mean and basis,
 eq. 7) the evaluation order of eq. 9 is

@@ -51,11 +51,11 @@ class S001RunPlayer(Player):
     def __init__(self, run_dir: Any, env: str | os.PathLike[str] | None = None, brdf: str | None = None,
                  scheme: str = "s001", window_size: tuple[int, int] = (480, 640), n_lobes: int = 3,
                  **_: Any) -> None:
-        from prt_torch.brdf.matrix import brdf_matrix, factor
         from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
         from prt_torch.player.lighting import load_lighting
         from prt_torch.player.posing import Poser
         from prt_torch.rundir import RunDir
+        from prt_torch.s001.brdf_matrix import brdf_matrix, factor
         from prt_torch.s001.player import S001Player
         from prt_torch.s001.posespace import CompressedTransfer
 

@@ -6,7 +6,7 @@ lighting -> local SH incident radiance), frame ``F_v`` (rows ``t, b, n``) and wo
 
     wo = F_v e_v,   l = T_v L (C, 3),   Gamma_v = tint * (y(wo)^T H) (G^T l)    (3,)
 
-``H, G (C, k)`` from :func:`prt_torch.brdf.matrix.factor` (``k = 4`` in the paper). The evaluation order keeps
+``H, G (C, k)`` from :func:`prt_torch.s001.brdf_matrix.factor` (``k = 4`` in the paper). The evaluation order keeps
 the per-vertex work at ``3 C^2 + 3 k C + k C`` multiply-adds. For an unoccluded vertex this agrees with the
 RPO shading (:func:`prt_torch.shade.rpo_shading.shade_rpo`) to the SH/SVD truncation errors of both.
 
@@ -42,7 +42,7 @@ def shade_matrix(T: Any, L: Any, frames: Any, view_dirs: Any, H: Any, G: Any, ti
         L: ``(C, 3)`` global SH lighting (RGB), or ``(..., C, 3)`` broadcast over vertices.
         frames: ``(..., V, 3, 3)`` vertex frames, rows ``(t, b, n)``.
         view_dirs: ``(..., V, 3)`` unit world directions toward the viewer.
-        H, G: ``(C, k)`` view and light maps (:func:`prt_torch.brdf.matrix.factor`).
+        H, G: ``(C, k)`` view and light maps (:func:`prt_torch.s001.brdf_matrix.factor`).
         tint: optional ``(3,)`` RGB BRDF tint (default 1).
         check: validate shapes and values.
 

@@ -140,7 +140,7 @@ def test_one_minus_zero_is_the_lower_hemisphere():
 
 def test_exit_term_is_reflected_once_by_white_lambert():
     from prt_torch.brdf.analytic import Lambert
-    from prt_torch.brdf.matrix import brdf_matrix
+    from prt_torch.s001.brdf_matrix import brdf_matrix
 
     k = exit_term_rows(4)
     B = brdf_matrix(Lambert(), 4)

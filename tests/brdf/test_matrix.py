@@ -12,8 +12,8 @@ from scipy.special import eval_legendre
 
 from prt_torch.brdf.analytic import BlinnPhong, Lambert, Phong
 from prt_torch.brdf.factor import tabulate
-from prt_torch.brdf.matrix import brdf_matrix, factor
 from prt_torch.errors import PrtError
+from prt_torch.s001.brdf_matrix import brdf_matrix, factor
 from prt_torch.sh.basis import sh_basis
 from prt_torch.sh.quadrature import hemisphere_directions
 

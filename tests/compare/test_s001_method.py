@@ -41,9 +41,9 @@ def test_entries_and_error_bounds(compared: dict, s001_run: tuple[Path, Path]) -
 
 
 def test_player_eq9_equals_eq5_on_the_interpolated_matrices(s001_run: tuple[Path, Path]) -> None:
-    from prt_torch.brdf.matrix import brdf_matrix, factor
     from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.rundir import RunDir
+    from prt_torch.s001.brdf_matrix import brdf_matrix, factor
     from prt_torch.s001.player import S001Player
     from prt_torch.s001.posespace import CompressedTransfer
     from prt_torch.s001.shading import shade_matrix

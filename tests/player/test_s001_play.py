@@ -20,11 +20,11 @@ from tests.torchfree import run_cli_without_torch
 
 @pytest.mark.parametrize("scheme", ["s001", "posespace"])
 def test_play_radiance_is_shade_matrix_of_interpolated_matrices(s001_run: tuple[Path, Path], scheme: str) -> None:
-    from prt_torch.brdf.matrix import brdf_matrix, factor
     from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.player.lighting import load_lighting
     from prt_torch.rig.vertex_frames import vertex_frames
     from prt_torch.rundir import RunDir
+    from prt_torch.s001.brdf_matrix import brdf_matrix, factor
     from prt_torch.s001.renderer import S001RunPlayer
     from prt_torch.s001.shading import shade_matrix
 

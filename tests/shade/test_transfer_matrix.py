@@ -8,9 +8,9 @@ import torch
 
 from prt_torch.brdf.analytic import BlinnPhong, Lambert
 from prt_torch.brdf.factor import hemisphere_rule, tabulate
-from prt_torch.brdf.matrix import brdf_matrix, factor
 from prt_torch.brdf.rpo import build_rpo
 from prt_torch.errors import PrtError
+from prt_torch.s001.brdf_matrix import brdf_matrix, factor
 from prt_torch.s001.shading import shade_matrix
 from prt_torch.sh.basis import sh_basis
 from prt_torch.sh.quadrature import hemisphere_directions, random_rotations
