@@ -155,3 +155,106 @@ def test_sg_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[st
     monkeypatch.setitem(sys.modules, "healpy", None)  # as if the sg extra were not installed
     code, out, err = _run(capsys, "light", str(tmp_path / "ok.pfm"), "--sg")
     assert code == 2 and "prt-torch[sg]" in err and err.count("\n") == 1, err
+
+
+# ------------------------------------------------------------------------------------------ --peaks (issue 27)
+
+
+def _disc_map(center: np.ndarray, radius_deg: float, radiance: list[float], h: int = 128) -> np.ndarray:
+    """A uniform sky of radiance 1 plus a disc (pixel centres inside it), ``(H, 2H, 3)`` float32."""
+    d = latlong_directions(h, 2 * h)
+    img = np.ones((h, 2 * h, 3))
+    img[d @ center >= math.cos(math.radians(radius_deg))] += radiance
+    return img.astype(np.float32)
+
+
+def test_peaks_json_on_a_disc_map(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("healpy", reason="the sg extra (healpy) is not installed")
+    from prt_torch.light.envmap import latlong_solid_angles
+
+    center = np.array([0.3, -0.5, 0.6])
+    center /= np.linalg.norm(center)
+    img = _disc_map(center, 5.0, [200.0, 150.0, 100.0])
+    write_pfm(tmp_path / "disc.pfm", img)
+    code, out, err = _run(capsys, "light", str(tmp_path / "disc.pfm"), "--peaks", "--json")
+    assert code == 0 and err == "", err
+    obj = json.loads(out)
+    assert len(obj["peaks"]) == 1 and set(obj["peaks"][0]) == {"direction", "angular_radius_deg", "radiance"}
+    p = obj["peaks"][0]
+    assert math.degrees(math.acos(min(1.0, float(np.dot(p["direction"], center))))) < 180 / 128
+    assert abs(p["angular_radius_deg"] - 5.0) < 0.2 * 5.0
+    np.testing.assert_allclose(p["radiance"], [200.0, 150.0, 100.0], rtol=0.1)
+    # peaks (closed-form disc integral) + residual power = the map's power (pixel sums here)
+    map_power = np.einsum("hw,hwc->c", latlong_solid_angles(128, 256), img.astype(np.float64))
+    disc = np.array(p["radiance"]) * 2 * np.pi * (1 - math.cos(math.radians(p["angular_radius_deg"])))
+    np.testing.assert_allclose(disc + np.array(obj["residual_power"]), map_power, rtol=0.01)
+    np.testing.assert_allclose(obj["map_power"], map_power, rtol=1e-6)
+    assert max(abs(e) for e in obj["energy_rel_error"]) < 0.01 and len(obj["peak_share"]) == 1
+    # the residual's SH: the uniform sky of radiance 1 (DC sqrt(4 pi), nothing else)
+    res = np.array(obj["residual_coefficients"])
+    assert res.shape == (9, 3)
+    np.testing.assert_allclose(res[0], math.sqrt(4 * math.pi), rtol=0.01)
+    assert np.abs(res[1:]).max() < 0.01 * math.sqrt(4 * math.pi)
+    code, out, _ = _run(capsys, "light", str(tmp_path / "disc.pfm"), "--peaks", "3")
+    assert code == 0 and "1 peak light(s) of at most 3" in out and "residual: power" in out
+
+
+def test_peaks_of_the_player_sky(capsys: pytest.CaptureFixture[str]) -> None:
+    from prt_torch.player.lighting import DEFAULT_SUN_COLOR, DEFAULT_SUN_DIRECTION
+
+    code, out, err = _run(capsys, "light", "sky", "--peaks", "--json")
+    assert code == 0, err
+    obj = json.loads(out)
+    assert len(obj["peaks"]) == 1
+    p = obj["peaks"][0]
+    sun = np.array(DEFAULT_SUN_DIRECTION) / np.linalg.norm(DEFAULT_SUN_DIRECTION)
+    np.testing.assert_allclose(p["direction"], sun, atol=1e-12)
+    assert p["angular_radius_deg"] == pytest.approx(0.265)
+    np.testing.assert_allclose(obj["peak_power"][0], DEFAULT_SUN_COLOR, rtol=1e-9)
+    code, out, _ = _run(capsys, "light", "sky", "--peaks", "1", "--sun-radius", "2", "--json")
+    assert code == 0 and json.loads(out)["peaks"][0]["angular_radius_deg"] == pytest.approx(2.0)
+    from tests.torchfree import run_cli_without_torch
+
+    run_cli_without_torch(["light", "sky", "--peaks", "--json"])  # the sky's split is numpy only
+
+
+def test_peaks_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    write_pfm(tmp_path / "ok.pfm", np.ones((8, 16, 3), np.float32))
+    ok = str(tmp_path / "ok.pfm")
+    cases = [
+        (("sky", "--peaks", "5"), "--peaks must be an integer in 0..4"),
+        (("sky", "--peaks", "-1"), "--peaks must be an integer in 0..4"),
+        (("sky", "--peaks", "two"), "--peaks must be an integer in 0..4"),
+        ((ok, "--peaks", "--sg"), "without --lobes / --sg"),
+        ((ok, "--peaks", "--sun-radius", "1"), "--sun-radius is the procedural sky's"),
+        ((ok, "--sun-radius", "1"), "--sun-radius goes with --peaks"),
+        (("sky", "--peaks", "--sun-radius", "0"), "sun angular radius"),
+    ]
+    for argv, msg in cases:
+        code, out, err = _run(capsys, "light", *argv)
+        assert code == 2, (argv, err)
+        assert err.startswith("error: ") and msg in err and err.count("\n") == 1, err
+        assert "Traceback" not in err and out == ""
+
+
+@pytest.mark.parametrize(("name", "elevation"), [("spiaggia_di_mondello_1k.hdr", None), ("quarry_01_1k.hdr", 10.0)])
+def test_peaks_of_the_shared_maps(shared_data: Path, capsys: pytest.CaptureFixture[str], name: str,
+                                  elevation: float | None) -> None:
+    """The sun of each shared outdoor map: at its brightest pixel, sun-sized (issue 27: mondello's is 6.8e-5 sr),
+    about half of the luminous power; energy kept."""
+    pytest.importorskip("healpy", reason="the sg extra (healpy) is not installed")
+    from prt_torch.light.envmap import load_envmap
+
+    path = shared_data / "envmaps" / name
+    code, out, err = _run(capsys, "light", str(path), "--peaks", "--json")
+    assert code == 0, err
+    obj = json.loads(out)
+    env = load_envmap(path)
+    lum = env.image @ np.array([0.2126, 0.7152, 0.0722])
+    r, c = np.unravel_index(np.argmax(lum), lum.shape)
+    p = obj["peaks"][0]
+    assert math.degrees(math.acos(min(1.0, float(np.dot(p["direction"], env.directions()[r, c]))))) < 0.5
+    assert 2e-5 < obj["peak_solid_angle_sr"][0] < 2e-4 and obj["peak_share"][0] > 0.4
+    assert max(abs(e) for e in obj["energy_rel_error"]) < 0.01
+    if elevation is not None:
+        assert math.degrees(math.asin(p["direction"][2])) == pytest.approx(elevation, abs=2.0)

@@ -59,6 +59,8 @@ _DATASET = "RunDir.dataset (the zarr store) is for train/eval/export"
 _MATERIAL_RPO = ("the character material's Cook-Torrance RPO is built once per run (`prt play --brdf material`, "
                  "`prt web`) and cached; without scikit-learn (player-only install) that is a one-line error")
 _SG_LIGHT = "`prt light --sg` needs the sg extra (healpy, torch) and says so in one line without it"
+_SG_SPLIT = ("`prt light FILE --peaks` (a map's light split: seed 004's peak detection) needs the sg extra and says so "
+             "in one line without it; the procedural sky's split (`prt light sky --peaks`) is numpy only")
 
 #: entry point -> {"module: top" (a lazy import) or "module -> imported module" (a lazy edge): reason}
 UNUSED_LAZY: dict[str, dict[str, str]] = {
@@ -78,6 +80,7 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
         "prt_torch.commands.light -> prt_torch.sg.lighting": _SG_LIGHT,
         "prt_torch.commands.light: healpy": _SG_LIGHT,
         "prt_torch.commands.light: torch": _SG_LIGHT,
+        "prt_torch.sg.split -> prt_torch.sg.lighting": _SG_SPLIT,
         "prt_torch.vct.play -> prt_torch.vct.player": "`prt play --renderer sg` (SG lighting + voxel cone tracing) "
                                                       "needs torch and healpy",
         "prt_torch.cloth.player -> prt_torch.cloth.cache": "`prt play --sequence` reads the run's vertex cache "

@@ -13,6 +13,16 @@ exp(sharpness (v . axis - 1))``, world frame z up), ``sg_rel_error`` (relative L
 ``sg_nsides``, ``sg_lobes_per_scale``, ``sg_seconds`` and ``peaks`` (``[{"direction", "solid_angle", "power",
 "n_pixels", "lobes"}, ...]``, strongest first); ``--sg-save FILE`` writes the lobes (``.json`` / ``.npz``).
 ``--sg`` needs the ``sg`` extra (healpy, torch).
+
+``--peaks [K]`` (default 2, at most 4) prints the light split of issue 27 instead
+(:mod:`prt_torch.sg.split`): the peak lights (direction, elevation / azimuth, angular radius, solid angle,
+radiance, share of the map's luminous power) and the residual's power. ``FILE`` may then be ``sky``: the
+player's procedural sky, whose sun is the peak by construction (``--sun-radius DEG``, default the real sun's
+0.265 deg). With ``--json``: ``file``, ``layout``, ``width``, ``height``, ``order``, ``peaks``
+(``[{"direction": [x, y, z], "angular_radius_deg": r, "radiance": [r, g, b]}, ...]``, strongest first: the
+schema compare.json carries), ``peak_solid_angle_sr``, ``peak_power`` (RGB each), ``peak_share``,
+``residual_power``, ``map_power``, ``energy_rel_error`` (per channel, ``(peaks + residual) / map - 1``) and
+``residual_coefficients`` (the residual's SH at ``--order``). A map's split needs the ``sg`` extra.
 """
 
 from __future__ import annotations
@@ -22,7 +32,7 @@ import json
 import sys
 
 HELP = ("Project an HDR environment map (.hdr/.exr/.pfm, lat-long or probe) to SH; optional ZH lobe fit, "
-        "--sg spherical-Gaussian fit with peak detection.")
+        "--sg spherical-Gaussian fit with peak detection, --peaks the light split (peak lights + residual).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,6 +49,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sg-threshold", type=float, default=0.02, metavar="E",
                         help="stop once the relative residual is <= E (default 0.02)")
     parser.add_argument("--sg-save", default=None, metavar="FILE", help="write the SG lobes to FILE (.json or .npz)")
+    parser.add_argument("--peaks", nargs="?", const="2", default=None, metavar="K",
+                        help="print the light split instead: up to K peak lights (default 2, at most 4) + the "
+                             "residual; FILE may be 'sky' (the player's procedural sky)")
+    parser.add_argument("--sun-radius", type=float, default=None, metavar="DEG",
+                        help="with --peaks on 'sky': the sun's angular radius in degrees (default 0.265)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,6 +62,10 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.sh.basis import check_order
 
     check_order(args.order)
+    if args.peaks is not None:
+        return _run_peaks(args)
+    if args.sun_radius is not None:
+        raise PrtError("--sun-radius goes with --peaks")
     if args.lobes is not None and not 1 <= args.lobes <= 16:
         raise PrtError(f"--lobes must be in 1..16, got {args.lobes}")
     from rich.console import Console
@@ -138,6 +157,80 @@ def _print_sg(fit: object) -> None:
         pt.add_row(str(i), ", ".join(f"{x:+.3f}" for x in p.direction), f"{p.solid_angle:.4g}",
                    ", ".join(f"{x:.4g}" for x in p.power), str(p.n_pixels), str(len(p.lobes)))
     con.print(pt)
+
+
+def _run_peaks(args: argparse.Namespace) -> int:
+    """``prt light FILE --peaks [K]``: the light split (:mod:`prt_torch.sg.split`) as a table or JSON."""
+    import math
+
+    import numpy as np
+
+    from prt_torch.errors import PrtError
+    from prt_torch.sg.split import MAX_PEAKS, SUN_ANGULAR_RADIUS, check_peak_count, split_envmap, split_sky
+
+    try:
+        k = int(args.peaks)
+    except ValueError:
+        raise PrtError(f"--peaks must be an integer in 0..{MAX_PEAKS}, got {args.peaks!r}") from None
+    check_peak_count(k, "--peaks")
+    if args.lobes is not None or args.sg:
+        raise PrtError("--peaks prints the light split: run it without --lobes / --sg")
+    if str(args.file) == "sky":
+        from prt_torch.player.lighting import DEFAULT_SUN_COLOR, DEFAULT_SUN_DIRECTION
+
+        r = SUN_ANGULAR_RADIUS if args.sun_radius is None else math.radians(args.sun_radius)
+        sun = np.asarray(DEFAULT_SUN_DIRECTION, dtype=np.float64)
+        split = split_sky(sun / np.linalg.norm(sun), DEFAULT_SUN_COLOR, sun_angular_radius=r)
+        split.peaks = split.peaks[:k]
+        full = None
+    else:
+        if args.sun_radius is not None:
+            raise PrtError("--sun-radius is the procedural sky's ('prt light sky --peaks'); a map's peaks are measured")
+        from prt_torch.light.envmap import load_envmap
+
+        full = load_envmap(args.file, layout=args.layout)
+        split = split_envmap(full, max_peaks=k)
+    env = split.residual
+    res_power = split.residual_power()
+    if full is None:  # the sky: the lighting is the split itself
+        map_power = split.total_power()
+    else:
+        map_power = full.solid_angles().reshape(-1) @ full.image.reshape(-1, 3).astype(np.float64)
+    err_rel = split.total_power() / np.where(map_power > 0, map_power, 1.0) - 1.0
+    h, w = env.shape
+    if args.json:
+        out: dict[str, object] = {"file": str(args.file), "layout": env.layout, "width": w, "height": h,
+                                  "order": args.order, **split.to_dict(),
+                                  "peak_solid_angle_sr": [p.solid_angle for p in split.peaks],
+                                  "peak_power": split.peak_power().tolist(), "peak_share": split.shares().tolist(),
+                                  "residual_power": res_power.tolist(), "map_power": map_power.tolist(),
+                                  "energy_rel_error": err_rel.tolist(),
+                                  "residual_coefficients": env.to_sh(args.order).tolist()}
+        json.dump(out, sys.stdout)
+        sys.stdout.write("\n")
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    from prt_torch.light.envmap import LUMA
+
+    con = Console()
+    t = Table(title=f"{args.file}: {env.layout} {w}x{h}, {len(split.peaks)} peak light(s) of at most {k} "
+              "(world frame, z up; azimuth from +x toward +y)")
+    for col in ("#", "direction (x, y, z)", "elev., azim. (deg)", "radius (deg)", "solid angle (sr)",
+                "radiance (R, G, B)", "share"):
+        t.add_column(col, justify="right")
+    for i, (p, share) in enumerate(zip(split.peaks, split.shares(), strict=True)):
+        el, az = p.elevation_azimuth_deg
+        t.add_row(str(i), ", ".join(f"{x:+.3f}" for x in p.direction), f"{el:.1f}, {az:.1f}",
+                  f"{math.degrees(p.angular_radius):.3f}", f"{p.solid_angle:.3g}",
+                  ", ".join(f"{x:.3g}" for x in p.radiance), f"{share:.1%}")
+    con.print(t)
+    total = float(split.total_power() @ LUMA)
+    con.print(f"residual: power (R, G, B) {', '.join(f'{x:.4g}' for x in res_power)}, "
+              f"{float(res_power @ LUMA) / total if total > 0 else 0.0:.1%} of the luminous power; "
+              f"energy (peaks + residual vs map) {', '.join(f'{x:+.1e}' for x in err_rel)}")
+    return 0
 
 
 class _null:

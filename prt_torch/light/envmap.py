@@ -47,6 +47,9 @@ LAYOUTS: tuple[str, ...] = ("latlong", "probe")
 #: Gauss-Legendre sub-samples per pixel side for the angular-map solid angles.
 PROBE_SUBSAMPLES = 6
 
+#: Rec. 709 luminance weights (luminance = ``rgb @ LUMA``)
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
 #: pixels per SH-projection chunk (bounds the ``(chunk, C)`` basis array).
 _CHUNK = 1 << 16
 

@@ -46,6 +46,9 @@ def _unit(direction: object, name: str) -> np.ndarray:
 #: default sun direction: 60 degrees above the horizon, azimuth 30 degrees from +x toward +y (unit).
 DEFAULT_SUN = (0.4330127018922193, 0.25, 0.8660254037844386)
 
+#: the real sun's angular radius (half of its 0.53 degree diameter), radians: a disc of ``6.7e-5`` sr
+SUN_HALF_ANGLE = float(np.radians(0.53 / 2))
+
 
 def cap_zh(order: int, half_angle: float) -> np.ndarray:
     """ZH band coefficients ``g_l (n,)`` of a unit-power uniform spherical cap (``g_0 = 1``)."""
@@ -117,7 +120,7 @@ def sky_envmap(sun_direction: object = DEFAULT_SUN, sky_color: object = (0.35, 0
 
 def sky_sh(order: int, sun_direction: object = DEFAULT_SUN, sun_color: object = (30.0, 28.0, 24.0),
            sky_color: object = (0.35, 0.55, 1.0), ground_color: object = (0.25, 0.22, 0.2),
-           sun_half_angle: float = np.radians(0.53 / 2), height: int = 128) -> np.ndarray:
+           sun_half_angle: float = SUN_HALF_ANGLE, height: int = 128) -> np.ndarray:
     """SH ``(C, 3)`` of a sun + clear sky + ground: CIE clear sky (projected by exact lat-long quadrature)
     plus the sun as a disk light of power ``sun_color`` (if the sun is above the horizon)."""
     check_order(order)

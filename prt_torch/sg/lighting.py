@@ -51,12 +51,9 @@ import numpy as np
 import torch
 
 from prt_torch.errors import PrtError, check
-from prt_torch.light.envmap import EnvMap, latlong_pixel_coords, probe_pixel_coords
+from prt_torch.light.envmap import LUMA, EnvMap, latlong_pixel_coords, probe_pixel_coords
 from prt_torch.sg.lobes import SGLobes
 from prt_torch.shapes import check_shape
-
-#: Rec. 709 luminance weights
-LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 #: an SG's support is cut where it falls below this fraction of its peak (sparse design matrices)
 SUPPORT_CUTOFF = 1e-4
@@ -88,6 +85,8 @@ class Peak:
         lobes: 1-3 SGs fitted to the shape of the component's light ABOVE the detection threshold (their
             integral is that light's power, a part of ``power``).
         n_pixels: HEALPix pixels in the component.
+        pixels: ``(P,)`` int64 flat indices (``row * W + col``) of the MAP's pixels in the component (those whose
+            HEALPix pixel is in it; the light split, :mod:`prt_torch.sg.split`, removes them).
     """
 
     direction: np.ndarray
@@ -95,6 +94,7 @@ class Peak:
     power: np.ndarray
     lobes: SGLobes
     n_pixels: int = 0
+    pixels: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: ``direction``, ``solid_angle``, ``power``, ``n_pixels``, ``lobes`` (list of SG dicts)."""
@@ -527,6 +527,6 @@ def _detect(env: EnvMap, nside: int | None, sigma: float, fraction: float, min_p
             keep, ex = lw > 0, cw
         out.append(Peak(direction=m, solid_angle=float(w[half].sum()), power=cw.sum(0),
                         lobes=_component_lobes(d[keep], (ex @ LUMA)[keep], ex[keep], pixel_var, dtype),
-                        n_pixels=int(g.sum())))
+                        n_pixels=int(g.sum()), pixels=idx[g].astype(np.int64)))
     excess = excess.reshape(env.image.shape)
     return out, excess
