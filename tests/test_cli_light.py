@@ -222,9 +222,10 @@ def test_peaks_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture
     write_pfm(tmp_path / "ok.pfm", np.ones((8, 16, 3), np.float32))
     ok = str(tmp_path / "ok.pfm")
     cases = [
-        (("sky", "--peaks", "5"), "--peaks must be an integer in 0..4"),
-        (("sky", "--peaks", "-1"), "--peaks must be an integer in 0..4"),
-        (("sky", "--peaks", "two"), "--peaks must be an integer in 0..4"),
+        (("sky", "--peaks", "5"), "--peaks must be an integer in 1..4, got '5'"),
+        (("sky", "--peaks", "0"), "--peaks must be an integer in 1..4"),
+        (("sky", "--peaks", "-1"), "--peaks must be an integer in 1..4"),
+        (("sky", "--peaks", "two"), "--peaks must be an integer in 1..4, got 'two'"),
         ((ok, "--peaks", "--sg"), "without --lobes / --sg"),
         ((ok, "--peaks", "--sun-radius", "1"), "--sun-radius is the procedural sky's"),
         ((ok, "--sun-radius", "1"), "--sun-radius goes with --peaks"),

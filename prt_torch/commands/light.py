@@ -14,7 +14,7 @@ exp(sharpness (v . axis - 1))``, world frame z up), ``sg_rel_error`` (relative L
 "n_pixels", "lobes"}, ...]``, strongest first); ``--sg-save FILE`` writes the lobes (``.json`` / ``.npz``).
 ``--sg`` needs the ``sg`` extra (healpy, torch).
 
-``--peaks [K]`` (default 2, at most 4) prints the light split of issue 27 instead
+``--peaks [K]`` (K in 1..4, default 2) prints the light split of issue 27 instead
 (:mod:`prt_torch.sg.split`): the peak lights (direction, elevation / azimuth, angular radius, solid angle,
 radiance, share of the map's luminous power) and the residual's power. ``FILE`` may then be ``sky``: the
 player's procedural sky, whose sun is the peak by construction (``--sun-radius DEG``, default the real sun's
@@ -166,13 +166,14 @@ def _run_peaks(args: argparse.Namespace) -> int:
     import numpy as np
 
     from prt_torch.errors import PrtError
-    from prt_torch.sg.split import MAX_PEAKS, SUN_ANGULAR_RADIUS, check_peak_count, split_envmap, split_sky
+    from prt_torch.sg.split import MAX_PEAKS, SUN_ANGULAR_RADIUS, split_envmap, split_sky
 
     try:
         k = int(args.peaks)
     except ValueError:
-        raise PrtError(f"--peaks must be an integer in 0..{MAX_PEAKS}, got {args.peaks!r}") from None
-    check_peak_count(k, "--peaks")
+        k = -1
+    if not 1 <= k <= MAX_PEAKS:
+        raise PrtError(f"--peaks must be an integer in 1..{MAX_PEAKS}, got {args.peaks!r}")
     if args.lobes is not None or args.sg:
         raise PrtError("--peaks prints the light split: run it without --lobes / --sg")
     if str(args.file) == "sky":

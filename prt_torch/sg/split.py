@@ -44,7 +44,6 @@ import numpy as np
 from prt_torch.errors import PrtError, check
 from prt_torch.light.envmap import LUMA, EnvMap, envmap_to_sh
 from prt_torch.light.sources import DEFAULT_SUN, SUN_HALF_ANGLE, directional_light_sh, sky_envmap
-from prt_torch.shapes import check_shape
 
 #: peak lights by default (``prt light --peaks``) and at most
 DEFAULT_PEAKS = 2
@@ -205,8 +204,10 @@ def split_sky(sun_direction: object = DEFAULT_SUN, sun_color: object = (30.0, 28
     residual = sky_envmap(sun_direction, sky_color, ground_color, height)
     s = np.asarray(sun_direction, dtype=np.float64)
     s = s / np.linalg.norm(s)  # sky_envmap checked it
-    e = np.broadcast_to(np.asarray(sun_color, dtype=np.float64), (3,))
-    check(bool(np.isfinite(e).all()) and bool((e >= 0).all()), f"sun color must be finite and >= 0, got {e.tolist()}")
+    e = np.asarray(sun_color, dtype=np.float64)
+    e = np.full(3, float(e)) if e.ndim == 0 else e
+    check(e.shape == (3,) and bool(np.isfinite(e).all()) and bool((e >= 0).all()),
+          f"sun color must be a finite non-negative scalar or RGB triple, got {e.tolist()}")
     peaks = [PeakLight(s, r, e / disc_solid_angle(r))] if s[2] > 0 else []
     return LightSplit(peaks, residual, source="procedural sky")
 
@@ -250,7 +251,6 @@ def split_envmap(env: EnvMap, max_peaks: int = DEFAULT_PEAKS, angular_radius: fl
     img = env.image.reshape(-1, 3).astype(np.float64)
     dirs = env.directions().reshape(-1, 3)
     om = env.solid_angles().reshape(-1)
-    check_shape(img, "N 3", name="environment map pixels")
     taken = np.zeros(len(om), dtype=bool)
     for p in found:
         taken[p.pixels] = True

@@ -210,5 +210,28 @@ def test_bad_arguments_are_one_line_errors() -> None:
         PeakLight(_dir(0, 0), 0.01, -np.ones(3))
     with pytest.raises(PrtError, match="needs 'radiance'"):
         PeakLight.from_dict({"direction": [0, 0, 1], "angular_radius_deg": 1.0})
+    with pytest.raises(PrtError, match="sun color"):
+        split_sky(sun_color=(1.0, 2.0))
     with pytest.raises(PrtError, match="expects an EnvMap"):
         split_envmap(np.ones((4, 8, 3)))  # type: ignore[arg-type]
+
+
+def test_a_disc_on_an_angular_map() -> None:
+    """The probe layout: a disc rendered at the pixel centres (the library's probe mapping, tested against
+    Debevec's formula in test_envmap.py) is found, and energy is kept with the probe's own pixel solid angles."""
+    pytest.importorskip("healpy", reason="the sg extra (healpy) is not installed")
+    from prt_torch.light.envmap import probe_directions, probe_solid_angles
+
+    n, center, r = 256, _dir(25.0, 250.0), math.radians(5.0)
+    d = probe_directions(n, n)
+    img = np.ones((n, n, 3)) + (d @ center >= math.cos(r))[..., None] * DISC_RAD
+    env = EnvMap(img.astype(np.float32), "probe")
+    split = split_envmap(env)
+    assert len(split.peaks) == 1
+    p = split.peaks[0]
+    assert _angle_deg(p.direction, center) < 1.0 and abs(math.degrees(p.angular_radius) - 5.0) < 1.0
+    om = probe_solid_angles(n, n)
+    map_power = np.einsum("hw,hwc->c", om, img)
+    got = p.power + np.einsum("hw,hwc->c", om, split.residual.image.astype(np.float64))
+    np.testing.assert_allclose(got, map_power, rtol=0.01)
+    np.testing.assert_allclose(p.power, DISC_RAD * 2 * np.pi * (1 - math.cos(r)), rtol=0.05)
