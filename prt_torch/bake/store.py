@@ -57,6 +57,7 @@ from prt_torch.metrics import evenly_spaced_indices
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
     from prt_torch.rig.character import Character
+    from prt_torch.rig.load import PlanClip
 
 #: the layout written by this code: 2 = crc32c on every chunk, every chunk written (1: neither)
 FORMAT_VERSION = 2
@@ -781,6 +782,17 @@ class BakedDataset:
     def run_config(self) -> RunConfig | None:
         """The run config recorded by the bake, validated (:func:`recorded_run_config`; ``None`` when absent)."""
         return recorded_run_config(self.attrs, str(self.path))
+
+    def clip_by_name(self, name: str, character: Character, fps: float | None = None) -> PlanClip:
+        """A clip name as this dataset's run uses it - one of its clips (a split entry: e.g. a held-out frame range
+        of a training clip) or a clip of ``character`` - as frames of the character's clips: the one rule,
+        :func:`prt_torch.rig.load.clip_by_name`, with the recorded config's ``character`` section (none recorded:
+        the character's clips only). ``fps``: the rate of a whole character clip (the bake's is
+        :meth:`recorded_fps`)."""
+        from prt_torch.rig.load import clip_by_name
+
+        cfg = self.run_config()
+        return clip_by_name(character, name, None if cfg is None else cfg.character, fps)
 
     def bake_config(self) -> BakeConfig:
         """The bake settings the store was baked with, validated (:func:`recorded_bake_config`)."""

@@ -5,6 +5,12 @@ torch-free)."""
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from prt_torch.rig.character import Character
+    from prt_torch.rig.clip import Clip
+    from prt_torch.rundir import RunDir
 
 HELP = "Play a clip of an exported run with onnxruntime: offscreen MP4/PNG frames or a window; frame timings."
 
@@ -13,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from prt_torch.player.renderers import renderers
 
     parser.add_argument("run", help="exported run directory (runs/NAME)")
-    parser.add_argument("--clip", default=None, help="clip name of the character (e.g. walk)")
+    parser.add_argument("--clip", default=None, help="clip name of the character (e.g. walk) or of the run's "
+                                                     "split (e.g. a held-out frame range of a training clip)")
     parser.add_argument("--sequence", default=None, help="a deformable (cloth) run: the sequence of its vertex cache "
                                                          "to play (prt_torch.cloth.player)")
     parser.add_argument("--motion", default=None, help="a motion file (.bvh, or a humanoid .glb/.gltf) retargeted "
@@ -115,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     player = renderer(args.renderer).build(args, (h, w))  # prt_torch.player.renderers: onnx and the methods'
     if args.light_angle:
         player.rotate_light(np.radians(args.light_angle))
-    clip = args.clip
+    clip: Any = None if args.clip is None else _clip_of_run(run, player.character, args.clip)
     try:
         if args.motion is not None:
             from prt_torch.rig.retarget import retarget_file
@@ -134,6 +141,18 @@ def run(args: argparse.Namespace) -> int:
     for p in res.outputs:
         console.print(f"wrote {p}")
     return 0
+
+
+def _clip_of_run(run: RunDir, character: Character, name: str) -> Clip:
+    """``--clip NAME`` as the run uses it: one of its dataset's clips (a split entry, e.g. a held-out frame range of
+    a training clip) or a clip of the character, by the one rule
+    (:meth:`prt_torch.bake.store.BakedDataset.clip_by_name`; a run without its dataset: the character's clips,
+    :func:`prt_torch.rig.load.clip_by_name`)."""
+    if run.dataset_path.is_dir():
+        return run.dataset().clip_by_name(name, character).clip
+    from prt_torch.rig.load import clip_by_name
+
+    return clip_by_name(character, name).clip
 
 
 def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
@@ -209,7 +228,10 @@ def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
     run = RunDir(args.run)
     timings = args.timings or (run.timings_path(args.out) if args.out else run.play_timings)
     console = Console(stderr=True)
-    player = ScenePlayer(args.run, scene=scene, ground=args.ground, clip=args.clip, fps=args.fps, env=args.env,
+    clip: Any = args.clip  # a name the character has stays a name: each scene character looks it up in its own clips
+    if clip is not None and clip not in (character := run.character()).clips:
+        clip = _clip_of_run(run, character, clip)  # a split's clip (e.g. a held-out frame range of a clip)
+    player = ScenePlayer(args.run, scene=scene, ground=args.ground, clip=clip, fps=args.fps, env=args.env,
                          brdf=args.brdf, threads=args.threads, window_size=(h, w))
     try:
         if args.light_angle:

@@ -110,8 +110,10 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
     gp = shexp_graph_path(run)
     if gp is None:
         raise PrtError(f"{run.path}: its scene needs the shexp graph and blocker spheres: run `prt export {run.path}`")
-    fps = float(recorded_fps(ctx.dataset.attrs) or ctx.character.clip(fs.clips[0]).fps)
-    actors, bundles = _actors(ctx, scene, fs.clips[0], fps, threads)
+    check(fs.local is not None and fs.sources is not None,
+          f"{run.path}: a scene's compare needs the posed frames of a skinned character")
+    fps = float(recorded_fps(ctx.dataset.attrs) or ctx.character.clip(fs.sources[0]).fps)
+    actors, bundles = _actors(ctx, scene, fs.sources[0], fps, threads)  # the character clip the frames are cut from
     n_f = fs.n_frames
     ground = scene_ground(scene.ground, actors, fps, int(max(fs.frame_index) + 1)) if scene.ground else None
     shexp = ShexpGraph(gp, ctx.order, threads=threads)
@@ -136,10 +138,8 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
         t_scene = np.array([int(fs.frame_index[f])])
         locs = []
         for k, a in enumerate(actors):
-            if k == 0:
-                c = ctx.character.clip(fs.clips[f])
-                c = c.resample(fps) if c.fps != fps else c
-                locs.append(a.place(np.asarray(c.local)[t_scene]))
+            if k == 0:  # the compared frame's own pose (compare's one clip-name rule)
+                locs.append(a.place(np.asarray(fs.local[f:f + 1])))
             else:
                 locs.append(a.locals(t_scene, fps))
         posed = [pose_actor(a, loc) for a, loc in zip(actors, locs, strict=True)]

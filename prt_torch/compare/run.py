@@ -28,6 +28,7 @@ from prt_torch.scoring.sampling import evenly_spaced
 from prt_torch.scoring.shading import ShippingShader
 from prt_torch.scoring.statistics import ImageStats, RadianceStats
 from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
+from prt_torch.shapes import check_shape
 
 TRUTH = "sh_truth"
 REFERENCE = "reference"
@@ -63,31 +64,60 @@ def heldout_frames(ctx: CompareRun, max_frames: int | None = None) -> FrameSet:
         rows = rows[evenly_spaced(len(rows), max_frames)]
     d = ds.rows(rows, ("pose", "positions", "frames", "visibility"))
     names = ds.clip_names
-    return FrameSet(features=d["pose"].astype(np.float32), positions=d["positions"].astype(np.float32),
-                    frames=d["frames"].astype(np.float32), clips=[names[i] for i in ds.clip_id[rows]],
-                    frame_index=ds.frame_index[rows].astype(np.int64), rows=rows,
-                    baked_visibility=d["visibility"].astype(np.float32))
+    clips, frame_index = [names[i] for i in ds.clip_id[rows]], ds.frame_index[rows].astype(np.int64)
+    fs = FrameSet(features=d["pose"].astype(np.float32), positions=d["positions"].astype(np.float32),
+                  frames=d["frames"].astype(np.float32), clips=clips, frame_index=frame_index, rows=rows,
+                  baked_visibility=d["visibility"].astype(np.float32))
+    if not is_deformable(ds.attrs):  # a vertex cache has no skeleton to pose
+        fs.local, fs.skin, fs.sources = row_poses(ctx, clips, frame_index)
+    return fs
+
+
+def row_poses(ctx: CompareRun, clips: list[str], frame_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """``local (F, J, 4, 4)``, ``skin (F, J, 4, 4)`` float64 and the source clip of the dataset frames ``(clips[f],
+    frame_index[f])`` (dataset clip names, indices into their source clips): each name resolved by the one rule
+    (:meth:`~prt_torch.bake.store.BakedDataset.clip_by_name`, so a held-out frame range of a training clip is that
+    clip's frames) and posed as the bake posed it. A frame outside its clip's entry is a one-line error."""
+    ch, ds = ctx.character, ctx.dataset
+    fps = recorded_fps(ds.attrs)
+    check_shape(frame_index, "F", name="row_poses: frame_index", dims={"F": len(clips)})
+    local = np.empty((len(clips), ch.num_joints, 4, 4), np.float64)
+    skin = np.empty_like(local)
+    sources = [""] * len(clips)
+    for name in dict.fromkeys(clips):
+        plan = ds.clip_by_name(name, ch, fps)
+        sel = np.flatnonzero([c == name for c in clips])
+        at = np.minimum(np.searchsorted(plan.frame_index, frame_index[sel]), len(plan.frame_index) - 1)
+        check(bool(np.all(plan.frame_index[at] == frame_index[sel])),
+              f"{ds.path}: frames of clip {name!r} are not frames of its entry (clip {plan.source!r}, "
+              f"{len(plan.frame_index)} frames): the recorded config does not describe this dataset")
+        poses = ch.pose(plan.clip)
+        local[sel], skin[sel] = poses.local[at], poses.skin[at]
+        for i in sel:
+            sources[i] = plan.source
+    return local, skin, sources
 
 
 def clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> FrameSet:
-    """A named clip of the character posed with the bake's code (LBS, vertex frames from the dataset's cluster
-    axes) at the dataset's frame rate; ``max_frames``: evenly spaced subset."""
+    """A named clip posed with the bake's code (LBS, vertex frames from the dataset's cluster axes): a clip of the
+    dataset's split (e.g. a held-out frame range of a training clip) or of the character, by the one rule
+    (:meth:`~prt_torch.bake.store.BakedDataset.clip_by_name`) at the dataset's frame rate; ``max_frames``: evenly
+    spaced subset."""
     from prt_torch.rig.vertex_frames import vertex_frames
 
     ch, ds = ctx.character, ctx.dataset
     if is_deformable(ds.attrs):
         return deformable_clip_frames(ctx, clip, max_frames)
-    if clip not in ch.clips:
-        raise PrtError(f"unknown clip {clip!r} for character {ch.name!r}; available: {sorted(ch.clips)}")
-    fps = recorded_fps(ds.attrs)
-    poses = ch.pose(clip, fps=fps)
+    plan = ds.clip_by_name(clip, ch, recorded_fps(ds.attrs))
+    poses = ch.pose(plan.clip)
     idx = evenly_spaced(poses.num_frames, max_frames if max_frames is not None else poses.num_frames)
     skin = poses.skin[idx]
     pos, nrm = ch.skin_mesh(skin)
     frames = vertex_frames(nrm, skin, ds.cluster, ds.cluster_axis, ds.cluster_bone)
     return FrameSet(features=np.asarray(poses.features[idx], dtype=np.float32), positions=pos.astype(np.float32),
-                    frames=np.asarray(frames, dtype=np.float32), clips=[clip] * len(idx), frame_index=idx,
-                    rows=np.full(len(idx), -1, np.int64))
+                    frames=np.asarray(frames, dtype=np.float32), clips=[clip] * len(idx),
+                    frame_index=plan.frame_index[idx], rows=np.full(len(idx), -1, np.int64),
+                    local=poses.local[idx], skin=skin, sources=[plan.source] * len(idx))
 
 
 def deformable_clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> FrameSet:

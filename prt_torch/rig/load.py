@@ -1,8 +1,10 @@
 """A run's character and its clip entries, from the config's ``character`` section: :func:`load_character` (the
 built-in humanoid or a glTF file, plus ``character.motions`` retargeted as clips, :func:`add_motions`),
-:func:`resolve_clips` (``train_clips``/``heldout_clips`` entries to frames of the character's clips) and
-:func:`check_disjoint` (no frame used twice). The bake plan (:mod:`prt_torch.bake.plan`) and the cape's subject
-(:mod:`prt_torch.cloth.subject`) both use them.
+:func:`resolve_clips` (``train_clips``/``heldout_clips`` entries to frames of the character's clips),
+:func:`check_disjoint` (no frame used twice) and :func:`clip_by_name` (a clip name as a run uses it - a split's
+dataset clip or a clip of the character - to frames of the character's clips). The bake plan
+(:mod:`prt_torch.bake.plan`) and the cape's subject (:mod:`prt_torch.cloth.subject`) use the first two;
+``prt compare`` and ``prt play`` the last (through :meth:`prt_torch.bake.store.BakedDataset.clip_by_name`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from prt_torch.rig.config import ClipRange, as_clip_range
 if TYPE_CHECKING:
     from prt_torch.config import RunConfig
     from prt_torch.rig.character import Character
+    from prt_torch.rig.config import CharacterConfig
 
 
 def load_character(cfg: RunConfig) -> Character:
@@ -108,6 +111,33 @@ def resolve_clips(character: Character, entries: Sequence[str | ClipRange], fps:
                            f"({full.num_frames} frames at {fps:g} fps)")
         out.append(PlanClip(r.dataset_name, r.clip, idx, Clip(r.dataset_name, full.fps, full.local[idx])))
     return out
+
+
+def clip_by_name(character: Character, name: str, cfg: CharacterConfig | None = None,
+                 fps: float | None = None) -> PlanClip:
+    """THE rule from a clip name, as a run uses it, to frames of the character's clips.
+
+    A ``train_clips``/``heldout_clips`` entry of ``cfg`` named ``name`` (its dataset name) that cuts a frame range of
+    a clip or renames one (e.g. ``{clip: animation_0, frames: "36:", name: walk_tail}``: frames 36.. of
+    ``animation_0``) resolves as the bake resolved it (:func:`resolve_clips` at ``cfg.fps``); any other name is a
+    clip of the character, whole, resampled at ``fps`` when given (its own rate otherwise). The result's
+    ``frame_index (F',)`` indexes the source clip at that rate, as the dataset's ``frame_index`` does. A name that
+    is neither is one :class:`PrtError` naming both lists.
+    """
+    if cfg is not None:
+        for key, entries in (("train_clips", cfg.train_clips), ("heldout_clips", cfg.heldout_clips)):
+            for i, entry in enumerate(entries):
+                r = as_clip_range(entry)
+                if r.dataset_name == name and r != ClipRange(clip=name):
+                    return resolve_clips(character, [r], cfg.fps, f"{key}[{i}]")[0]
+    if name not in character.clips:
+        split = [] if cfg is None else [as_clip_range(e).dataset_name for e in (*cfg.train_clips, *cfg.heldout_clips)]
+        raise PrtError(f"unknown clip {name!r} for character {character.name!r}; available: {sorted(character.clips)}"
+                       + (f"; the run's split clips: {split}" if split else ""))
+    clip = character.clips[name]
+    if fps is not None and fps != clip.fps:  # as Character.pose(name, fps=...)
+        clip = clip.resample(fps)
+    return PlanClip(name, name, np.arange(clip.num_frames, dtype=np.int64), clip)
 
 
 def check_disjoint(train: list[PlanClip], heldout: list[PlanClip]) -> None:

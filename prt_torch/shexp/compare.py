@@ -1,11 +1,11 @@
 """``shexp``: self-shadowing of the character by its own sphere blockers (SHEXP, Ren 2006; seed 003 sec. 7).
 
 Per frame: the run's spheres (:class:`prt_torch.blockers.SphereSet`) are carried by their bones
-(:func:`prt_torch.blockers.pose_spheres` with the frame's skinning matrices, the character's clip posed at the
-dataset's frame rate like the bake), then every vertex's local-frame SH visibility is the SH exponential (HYB)
-of the summed log-visibility of the spheres that do not contain it. The whole-sphere result gets the dataset's
-below-horizon convention (``"zero"``: ``H * v``, ``"one"``: ``1 - H * (1 - v)``, one constant ``(C, C)`` product
-matrix; docs/DESIGN.md) so it is scored like every other visibility.
+(:func:`prt_torch.blockers.pose_spheres` with the frame's skinning matrices, :attr:`FrameSet.skin`: the frames
+posed by compare's one clip-name rule like the bake), then every vertex's local-frame SH visibility is the SH
+exponential (HYB) of the summed log-visibility of the spheres that do not contain it. The whole-sphere result gets
+the dataset's below-horizon convention (``"zero"``: ``H * v``, ``"one"``: ``1 - H * (1 - v)``, one constant ``(C,
+C)`` product matrix; docs/DESIGN.md) so it is scored like every other visibility.
 
 Run-time path: the exported ``shexp.onnx`` and ``blockers.npz`` through onnxruntime
 (:class:`prt_torch.runtime.session.OrtGraph`) when the run's export has them (a graph from an older SHEXP graph
@@ -24,22 +24,19 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.bake.store import recorded_fps
 from prt_torch.compare.methods.base import CompareRun, FrameBatch, FrameSet, MethodBase, register
 from prt_torch.errors import check
+from prt_torch.shapes import check_shape
 
 
 def frame_skins(run: CompareRun, frames: FrameSet) -> np.ndarray:
-    """``(F, J, 4, 4)`` skinning matrices of the compared frames: each clip posed at the dataset's frame rate
-    (``compare.run.clip_frames`` / the bake), rows picked by ``frame_index``."""
-    ch = run.character
-    fps = recorded_fps(run.dataset.attrs)
-    out = np.empty((frames.n_frames, ch.num_joints, 4, 4), dtype=np.float64)
-    for clip in dict.fromkeys(frames.clips):
-        check(clip in ch.clips, f"shexp: clip {clip!r} is not a clip of character {ch.name!r}")
-        sel = np.array([c == clip for c in frames.clips])
-        out[sel] = ch.pose(clip, fps=fps).skin[frames.frame_index[sel]]
-    return out
+    """``(F, J, 4, 4)`` skinning matrices of the compared frames: the :class:`FrameSet`'s own (posed by compare's
+    one clip-name rule, so a held-out frame range of a training clip is posed like the bake posed it)."""
+    check(frames.skin is not None, f"shexp: the compared frames of {run.run.path} carry no skinning matrices")
+    assert frames.skin is not None
+    check_shape(frames.skin, "F J 4 4", name="shexp: frame skins",
+                dims={"F": frames.n_frames, "J": run.character.num_joints})
+    return np.asarray(frames.skin, dtype=np.float64)
 
 
 def has_sphere_set(run: CompareRun) -> bool:

@@ -30,7 +30,7 @@ def setup(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
     frames = vertex_frames(nrm, poses.skin[idx], labels, axes, bones)
     fs = FrameSet(features=np.zeros((2, 1), np.float32), positions=pos.astype(np.float32),
                   frames=np.asarray(frames, np.float32), clips=[clip, clip], frame_index=idx,
-                  rows=np.full(2, -1, np.int64))
+                  rows=np.full(2, -1, np.int64), local=poses.local[idx], skin=poses.skin[idx], sources=[clip, clip])
     run = RunDir(tmp_path_factory.mktemp("shexp_run"))
     ds = SimpleNamespace(attrs={"config": {"character": {"fps": None}, "bake": {"blockers": 24}},
                                 "bake": {"below_horizon": "zero"}, "conventions": {}})

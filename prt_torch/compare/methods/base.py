@@ -40,8 +40,13 @@ class CompareRun:
 @dataclass
 class FrameSet:
     """The posed frames compared: ``features (F, A)`` float32, ``positions (F, V, 3)`` float32 world,
-    ``frames (F, V, 3, 3)`` float32 vertex frames (rows t, b, n), ``clip`` names per frame, ``frame_index (F,)``,
-    ``rows (F,)`` the dataset rows (``-1`` for frames posed here) and, for dataset rows, the baked ``visibility``."""
+    ``frames (F, V, 3, 3)`` float32 vertex frames (rows t, b, n), ``clip`` names per frame (a split's dataset clip
+    names, e.g. a held-out frame range of a training clip), ``frame_index (F,)`` into the character clip each frame
+    is cut from, ``rows (F,)`` the dataset rows (``-1`` for frames posed here) and, for dataset rows, the baked
+    ``visibility``. A skinned character's frames also carry their pose, by the one clip-name rule
+    (:func:`prt_torch.rig.load.clip_by_name`): ``local (F, J, 4, 4)`` float64 joint-local transforms, ``skin (F,
+    J, 4, 4)`` float64 skinning matrices and ``sources`` (the character clip per frame); ``None`` for a deformable
+    subject. A method poses from these, never by looking a clip name up in the character."""
 
     features: np.ndarray
     positions: np.ndarray
@@ -50,6 +55,9 @@ class FrameSet:
     frame_index: np.ndarray
     rows: np.ndarray
     baked_visibility: np.ndarray | None = None
+    local: np.ndarray | None = None
+    skin: np.ndarray | None = None
+    sources: list[str] | None = None
 
     @property
     def n_frames(self) -> int:
