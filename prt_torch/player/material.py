@@ -15,10 +15,16 @@ RPO (:func:`select_rpo`): ``material`` is a BRDF name beside the run's catalogue
 (:func:`prt_torch.rig.material.material_rpo_file`). It is the default BRDF of a character that has its own material
 (a glTF character); the built-in character has none (:data:`~prt_torch.rig.material.DEFAULT_MATERIAL`: white,
 roughness 0.5, dielectric) and keeps the run's first catalogue BRDF by default.
+
+The look (:func:`surface_albedo`, a :class:`SurfaceAlbedo`): both rules above in one object, the ONE albedo rule
+of everything that shows or scores a character's surface: the player (:meth:`~prt_torch.player.player.Player.
+surface_radiance`, its renderer) and ``prt compare`` (every row of its strip, the Monte-Carlo reference included,
+and every PSNR: :class:`prt_torch.scoring.images.ImageRenderer`, :func:`prt_torch.scoring.rpos.player_brdfs`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +68,49 @@ def surface_texture(character: Any) -> tuple[np.ndarray, np.ndarray] | None:
     return np.asarray(uv, dtype=np.float32), np.ascontiguousarray(base, dtype=np.float32)
 
 
+@dataclass(frozen=True, eq=False)
+class SurfaceAlbedo:
+    """A character's base colour as the player applies it: ``vertex (V, 3)`` float32 linear per vertex
+    (:func:`vertex_base_color`; ``None``: white, the radiance is used as it is) and, for a textured character,
+    ``uv (T, 3, 2)`` and the linear ``texture (H, W, 3)`` times the factor (:func:`surface_texture`) that rendered
+    images shade with per pixel (``None`` both: per-vertex colours only)."""
+
+    vertex: np.ndarray | None
+    uv: np.ndarray | None = None
+    texture: np.ndarray | None = None
+
+    @property
+    def white(self) -> bool:
+        """No base colour at all: every figure and image is the radiance's own."""
+        return self.vertex is None and self.texture is None
+
+    def apply(self, radiance: np.ndarray) -> np.ndarray:
+        """The surface radiance ``(..., V, 3)``: ``radiance (..., V, 3)`` times the per-vertex base colour (what
+        the player tone-maps per vertex; the very array when :attr:`white`)."""
+        return radiance if self.vertex is None else radiance * self.vertex
+
+    def summary(self) -> str:
+        """One line saying which base colour multiplies the radiance."""
+        if self.texture is not None:
+            return ("glTF base-colour texture x factor: per pixel in images (interior pixels), per vertex (the "
+                    "corner mean) in vertex figures and silhouette pixels")
+        if self.vertex is not None:
+            return f"base colour factor {np.round(self.vertex[0].astype(float), 4).tolist()} (no texture)"
+        return "white (no base colour)"
+
+
+def surface_albedo(character: Any) -> SurfaceAlbedo:
+    """The :class:`SurfaceAlbedo` of ``character`` (its material; the default material's is white)."""
+    tex = surface_texture(character)
+    return SurfaceAlbedo(vertex_base_color(character), None if tex is None else tex[0],
+                         None if tex is None else tex[1])
+
+
+def has_own_material(character: Any) -> bool:
+    """Whether ``character`` has its own material (a glTF character): then ``material`` is the BRDF it plays."""
+    return getattr(character, "material", None) is not None
+
+
 # -- the material's RPO ------------------------------------------------------------------------------------------
 
 
@@ -73,7 +122,7 @@ def brdf_names(bundle: Any) -> list[str]:
 def default_brdf(bundle: Any, material: bool = True) -> str:
     """``material`` for a character with its own material (a glTF character), else the catalogue's first BRDF
     (``material=False``: a renderer that shades catalogue BRDFs only; the catalogue's first for every character)."""
-    own = material and getattr(bundle.character, "material", None) is not None
+    own = material and has_own_material(bundle.character)
     return MATERIAL_BRDF if own else bundle.brdf_names[0]
 
 

@@ -38,7 +38,7 @@ import numpy as np
 from prt_torch.errors import PrtError, check
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
-from prt_torch.player.material import brdf_names, select_rpo, surface_texture
+from prt_torch.player.material import SurfaceAlbedo, brdf_names, select_rpo, surface_albedo
 from prt_torch.player.posing import PoseBatch, Poser
 from prt_torch.player.timing import FrameTimer
 from prt_torch.player.tonemap import ToneMap, auto_tonemap
@@ -371,11 +371,16 @@ class Player:
     def surface_radiance(self, radiance: np.ndarray) -> np.ndarray:
         """The character's ``radiance (V, 3)`` times its base colour (its material,
         :mod:`prt_torch.player.material`; per vertex), what :meth:`colors` tone-maps."""
-        if not hasattr(self, "_base_color"):
-            from prt_torch.player.material import vertex_base_color
+        return self.albedo.apply(radiance)
 
-            self._base_color = vertex_base_color(self.character)
-        return radiance if self._base_color is None else radiance * self._base_color
+    @property
+    def albedo(self) -> SurfaceAlbedo:
+        """The character's base colour, the one rule (:func:`prt_torch.player.material.surface_albedo`): per vertex
+        in :meth:`colors`, per pixel in a textured character's rendered images."""
+        albedo = getattr(self, "_albedo", None)
+        if albedo is None:
+            albedo = self._albedo = surface_albedo(self.character)
+        return albedo
 
     def tone(self, radiance: np.ndarray) -> np.ndarray:
         """uint8 colours of any ``radiance (N, 3)`` (the character's surface radiance, or a floor's) under the
@@ -397,11 +402,10 @@ class Player:
         if self._renderer is None or self._renderer.off_screen != off_screen:
             if self._renderer is not None:
                 self._renderer.close()
-            tex = surface_texture(self.character)  # a textured character: base colour per pixel
+            alb = self.albedo  # a textured character: base colour per pixel
             self._renderer = MeshRenderer(self.character.rest_vertices, self.character.faces,
                                           window_size=(self.window_size[1], self.window_size[0]),
-                                          off_screen=off_screen, uv=None if tex is None else tex[0],
-                                          texture=None if tex is None else tex[1])
+                                          off_screen=off_screen, uv=alb.uv, texture=alb.texture)
         self._renderer.set_camera(self.eye, self.center)
         return self._renderer
 
