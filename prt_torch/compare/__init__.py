@@ -5,8 +5,15 @@ the bake's code (``--clip``); ``--frames`` caps either (evenly spaced). Methods 
 a registry later methods plug into) run round-robin per frame, batch 1, in one process: ``ms_per_frame`` is
 the median of each method's own run-time path (onnxruntime for learned models, Embree ``trace_frame`` for
 the truth, the constant for ``unshadowed``). Every visibility is shaded by :mod:`prt_torch.scoring`
-(the shipped RPOs ``lambert`` and ``phong``, the player's lighting through its ZH lobes, the player's camera,
-renderer and tone map). References:
+(the shipped RPOs ``lambert`` and ``phong``, and ``material`` for a character with its own material; the player's
+lighting through its ZH lobes, the player's camera, renderer and tone map). The look is the player's, one rule
+(:class:`prt_torch.player.material.SurfaceAlbedo`) for every row of the strip, the reference included, and for every
+figure: the radiance times the character's base colour (a textured glTF character: per pixel in the images, the
+corner mean per vertex in the vertex figures), one tone map per frame fixed from the truth's surface radiance; a
+character with its own material is also shaded with its Cook-Torrance RPO (``material``, the file ``prt play``
+plays; the reference with the analytic Cook-Torrance it was built from), and the strip shows ``material``. The
+built-in character is white and has no material of its own: its figures are those of the catalogue alone.
+References:
 
 * ``sh_truth``: visibility ray-traced with the bake's own code and settings (the learning target): every
   top-level figure is against it, so it isolates each method's own error;
@@ -27,11 +34,15 @@ key                                    meaning
                                        the sky without its sun), ``sun`` (that plus a small bright disk:
                                        ``--sun-size`` degrees, ``--sun-power``); every method and the reference
                                        see the same light (SH methods its SH, ``sg_vct`` the full-resolution map)
-``brdfs``                              the shipped RPOs shaded (``["lambert", "phong"]``)
+``brdfs``                              the RPOs shaded (``["lambert", "phong"]``, plus ``"material"`` for a
+                                       character with its own material: keys tagged ``material``)
+``material``                           the character's material (``name``, ``base_color``, ``metallic``,
+                                       ``roughness``, ``has_texture``), ``albedo`` (which base colour multiplied
+                                       every figure and image), ``strip_brdf``, ``rule``
 ``image_frames``                       frames rendered for image PSNR (evenly spaced, strip frame included)
-``strip_frame``                        ``{index, clip, frame_index, row}`` of the image strip
+``strip_frame``                        ``{index, clip, frame_index, row, brdf}`` of the image strip
 ``methods.NAME.vis_rel_err``           relative SH L2 error vs ``sh_truth`` (``null`` for radiance methods)
-``methods.NAME.radiance_rel_rmse``     vertex radiance relative RMSE vs ``sh_truth``, both BRDFs pooled
+``methods.NAME.radiance_rel_rmse``     vertex (surface) radiance relative RMSE vs ``sh_truth``, the BRDFs pooled
 ``methods.NAME.psnr_image_diffuse``    image PSNR (dB, character pixels, peak 1) vs ``sh_truth``, lambert
 ``methods.NAME.psnr_image_glossy``     the same, phong
 ``methods.NAME.bytes``                 run-time data beyond the character, RPOs, lighting (ONNX initialisers
@@ -41,7 +52,8 @@ key                                    meaning
 ``methods.NAME.*`` (method info)       extra keys of the method (``MethodBase.info``): e.g. ``sg_vct``'s
                                        ``ms_voxelize_trace_shade``, its grid and cone counts; ``shexp``'s
                                        sphere count; the precision rows' ``precision``
-``methods.NAME.*_diffuse|_glossy``     ``radiance_rel_rmse_*``, ``psnr_vertex_*`` per BRDF
+``methods.NAME.*_diffuse|_glossy``     ``radiance_rel_rmse_*``, ``psnr_vertex_*`` per BRDF (``*_material``: the
+                                       character's own, with ``psnr_image_material``)
 ``methods.NAME.vs_reference``          the same keys against the Monte-Carlo reference (vertex figures over
                                        the vertices facing the camera: the analytic BRDF is 0 behind them)
 ``reference``                          ``{frames, frame_indices, rays_per_estimate, estimates, lighting,

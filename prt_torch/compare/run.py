@@ -23,7 +23,7 @@ from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path, atomic_write_json, atomic_write_text
 from prt_torch.rundir import RunDir
 from prt_torch.scoring.images import ImageRenderer, player_camera
-from prt_torch.scoring.rpos import DIFFUSE, GLOSSY, shipping_rpos
+from prt_torch.scoring.rpos import DIFFUSE, GLOSSY, player_brdfs
 from prt_torch.scoring.sampling import evenly_spaced
 from prt_torch.scoring.shading import ShippingShader
 from prt_torch.scoring.statistics import ImageStats, RadianceStats
@@ -32,7 +32,8 @@ from prt_torch.shapes import check_shape
 
 TRUTH = "sh_truth"
 REFERENCE = "reference"
-#: the BRDF of the image strip
+#: the BRDF of the image strip for a character without its own material (one with its own: ``material``, what
+#: the player plays; :func:`strip_brdf`)
 STRIP_BRDF = DIFFUSE
 TAGS = {DIFFUSE: "diffuse", GLOSSY: "glossy"}
 
@@ -205,9 +206,9 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         scene: a :class:`~prt_torch.scene.config.SceneConfig` (default: the run's recorded scene); with a floor or
             a second character, ``compare.json`` gains ``ground`` and ``scene`` (:mod:`prt_torch.compare.ground`).
     """
-    from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.eval.evaluate import ProgressBar
     from prt_torch.player.lighting import load_lighting
+    from prt_torch.player.material import surface_albedo
 
     check(max_frames is None or max_frames >= 1, f"--frames must be >= 1, got {max_frames}")
     note = log or (lambda s: None)
@@ -232,8 +233,11 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
 
         spec = light_spec(light, env, *(() if sun_size is None else (sun_size,)), sun_power=sun_power)
         lighting = lighting_from_sh(spec_sh(spec, ctx.order), 3, source=spec.source)
-    rpos = shipping_rpos(ctx.order, ctx.run)
-    brdfs = {n: builtin_brdf(n) for n in rpos}
+    # the player's look: its BRDFs (the character's own material too) and its base colour, for every row and figure
+    rpos, brdfs = player_brdfs(ctx.order, ctx.run, ctx.character)
+    albedo = surface_albedo(ctx.character)
+    sa = albedo.apply  # surface radiance (the identity for a white character)
+    strip_b = strip_brdf(rpos)
     camera = player_camera(ctx.character, positions=fs.positions if is_deformable(ctx.dataset.attrs) else None)
     req = RadianceRequest(lighting, dict(rpos), brdfs, camera.eye, extra={"light_spec": spec})
     insts: dict[str, MethodBase] = {}
@@ -260,9 +264,9 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
             d = res[("light", b, "lobes")]
             for n in names:
                 pred = d[n] if n in d else rad_direct[n][b][sl]
-                stats[n][b].add(pred, d[TRUTH])
-            if b == STRIP_BRDF:
-                gap[sl] = np.abs(d[TRUTH] - d["unshadowed"]).mean(axis=(1, 2)) if "unshadowed" in d else 0.0
+                stats[n][b].add(sa(pred), sa(d[TRUTH]))
+            if b == strip_b:
+                gap[sl] = np.abs(sa(d[TRUTH]) - sa(d["unshadowed"])).mean(axis=(1, 2)) if "unshadowed" in d else 0.0
     strip_f = int(np.argmax(gap))
     img_idx = evenly_spaced(fs.n_frames, max(image_frames, 1), must=[strip_f])
     ref_idx = evenly_spaced(fs.n_frames, reference_frames, must=[strip_f]) if reference_frames > 0 else \
@@ -280,7 +284,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
     offset = float(ctx.bake["ray_offset_world"])
     light_ref = reference_light(env) if light == "sky" else spec_reference(spec)
     bar = ProgressBar(progress, len(all_idx), "images and reference")
-    renderer = ImageRenderer(ctx.character.rest_vertices, faces, camera)
+    renderer = ImageRenderer(ctx.character.rest_vertices, faces, camera, albedo=albedo)
     try:
         for j, f in enumerate(all_idx):
             pos = fs.positions[f]
@@ -292,7 +296,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
                     fi = renderer.frame_images(pos, per[b], TRUTH, mask=mask)
                     for n in names:
                         img[n][b].add(*fi.sse[n])
-                    if f == strip_f and b == STRIP_BRDF:
+                    if f == strip_f and b == strip_b:
                         strip["images"] = fi
             if f in ref_idx:
                 pair = reference_pair(pos, fs.frames[f], faces, camera.eye, light_ref, brdfs, reference_rays, offset)
@@ -301,13 +305,14 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
                 for b in rpos:
                     cand = {REFERENCE: mean[b], "estimate_a": pair.a[b], "estimate_b": pair.b[b], **per[b]}
                     fi = renderer.frame_images(pos, cand, REFERENCE, mask=mask)
+                    ref_s = sa(mean[b])[front]
                     for n in names:
                         ref_img[n][b].add(*fi.sse[n])
-                        ref_rad[n][b].add(per[b][n][front], mean[b][front])
+                        ref_rad[n][b].add(sa(per[b][n])[front], ref_s)
                     # noise: estimate b vs estimate a (tone map from the mean)
                     ref_img["estimate_b"][b].add(*_sse_between(fi, "estimate_b", "estimate_a"))
-                    ref_rad["estimate_b"][b].add(pair.b[b][front], pair.a[b][front])
-                    if f == strip_f and b == STRIP_BRDF:
+                    ref_rad["estimate_b"][b].add(sa(pair.b[b])[front], sa(pair.a[b])[front])
+                    if f == strip_f and b == strip_b:
                         strip["reference"] = fi.images[REFERENCE]
             bar.advance()
     finally:
@@ -337,7 +342,8 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         "lighting_path": "lobes", "light": light, "brdfs": list(rpos),
         "image_frames": int(len(img_idx)),
         "strip_frame": {"index": strip_f, "clip": fs.clips[strip_f], "frame_index": int(fs.frame_index[strip_f]),
-                        "row": int(fs.rows[strip_f])},
+                        "row": int(fs.rows[strip_f]), "brdf": strip_b},
+        "material": _material_keys(ctx.character, albedo, strip_b),
         "timing": "median seconds per frame of each method's own run-time path (batch 1), all methods in one "
                   "process, round-robin per frame after one untimed warm-up call",
         "methods": out_methods,
@@ -357,10 +363,29 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         }
     from prt_torch.compare.ground import compare_scene
 
-    result.update(compare_scene(ctx, fs, lighting, rpos, scene=scene, image_frames=image_frames, threads=threads,
+    catalogue = {b: r for b, r in rpos.items() if b in TAGS}  # the scene's figures: the catalogue BRDFs, as before
+    result.update(compare_scene(ctx, fs, lighting, catalogue, scene=scene, image_frames=image_frames, threads=threads,
                                 log=note))
     _write_outputs(ctx.run, result, strip, names)
     return result
+
+
+def strip_brdf(rpos: dict[str, Any]) -> str:
+    """The strip's BRDF: ``material`` when it is scored (a character with its own material: what the player
+    plays by default, :func:`prt_torch.player.material.default_brdf`), else :data:`STRIP_BRDF`."""
+    from prt_torch.rig.material import MATERIAL_BRDF
+
+    return MATERIAL_BRDF if MATERIAL_BRDF in rpos else STRIP_BRDF
+
+
+def _material_keys(character: Any, albedo: Any, strip_b: str) -> dict[str, Any]:
+    """``compare.json``'s ``material``: the character's material and the base colour every figure and image used."""
+    from prt_torch.rig.material import character_material
+
+    return {**character_material(character).summary(), "albedo": albedo.summary(), "strip_brdf": strip_b,
+            "rule": "the player's: radiance x base colour (per pixel in images for a textured character, per vertex "
+                    "in vertex figures), for every method and the Monte-Carlo reference; one tone map per frame "
+                    "fixed from the truth's surface radiance"}
 
 
 def _sse_between(fi: Any, a: str, b: str) -> tuple[float, int]:
@@ -403,17 +428,19 @@ def _fmt(x: Any, key: str = "") -> str:
 
 
 def table_markdown(result: dict[str, Any]) -> str:
-    """The Markdown table of ``compare.json``: one row per method, vs ``sh_truth`` then vs the reference."""
+    """The Markdown table of ``compare.json``: one row per method, vs ``sh_truth`` then vs the reference (a
+    character with its own material: its ``psnr_image_material`` column too, the BRDF the player plays)."""
+    mat = ("psnr_image_material",) if "material" in result.get("brdfs", ()) else ()
     lines = [f"`prt compare`: {result['frames']} frames of {', '.join(result['clips'])} ({result['source']}), "
              f"{result['n_vertices']} vertices, order {result['sh_order']}; lighting: {result['lighting']}; "
              f"image PSNR on {result['image_frames']} frames (character pixels, the player's camera and tone map).",
-             "", "| method | " + " | ".join(COLUMNS) + " | run time |",
-             "| --- | " + " | ".join("---:" for _ in COLUMNS) + " | --- |"]
+             "", "| method | " + " | ".join(COLUMNS + mat) + " | run time |",
+             "| --- | " + " | ".join("---:" for _ in COLUMNS + mat) + " | --- |"]
     for n, m in result["methods"].items():
-        lines.append(f"| {n} | " + " | ".join(_fmt(m.get(c), c) for c in COLUMNS) + f" | {m['runtime']} |")
+        lines.append(f"| {n} | " + " | ".join(_fmt(m.get(c), c) for c in COLUMNS + mat) + f" | {m['runtime']} |")
     ref = result.get("reference")
     if ref:
-        cols = ("radiance_rel_rmse", "psnr_image_diffuse", "psnr_image_glossy")
+        cols = ("radiance_rel_rmse", "psnr_image_diffuse", "psnr_image_glossy", *mat)
         lines += ["", f"Against the Monte-Carlo reference ({ref['frames']} frames, {ref['estimates']} x "
                   f"{ref['rays_per_estimate']} rays per vertex, analytic BRDFs, {ref['lighting']}):", "",
                   "| method | " + " | ".join(cols) + " |", "| --- | " + " | ".join("---:" for _ in cols) + " |"]
@@ -448,7 +475,8 @@ def _write_outputs(run: RunDir, result: dict[str, Any], strip: dict[str, Any], n
         write_png(run.compare_strip, image_strip(imgs, labels, diffs, dlabels))
         s = result["strip_frame"]
         figs.append((run.compare_strip.name, f"frame {s['index']} ({s['clip']} #{s['frame_index']}): the largest "
-                     f"truth vs unshadowed gap; {STRIP_BRDF}, one tone map from sh_truth; row 2: 4x |difference|"))
+                     f"truth vs unshadowed gap; {s['brdf']} x the base colour, one tone map from sh_truth; row 2: 4x "
+                     f"|difference|"))
     plot_scatter(result, run.compare_scatter)
     figs.append((run.compare_scatter.name, "image PSNR (diffuse) vs milliseconds per frame"))
     if "ground" in result:

@@ -7,17 +7,26 @@ to every prediction of that frame (:meth:`ImageRenderer.frame_images`). The mask
 covered by the mesh (a render with white vertex colours on a black background reads 255 in every channel;
 anti-aliased silhouette pixels, which mix in the background, are excluded); the errors over it are
 :mod:`prt_torch.scoring.statistics`'.
+
+The character's base colour is the player's (:class:`prt_torch.player.material.SurfaceAlbedo`, ``albedo=``): the
+tone map is fixed from the truth's SURFACE radiance (radiance times the per-vertex base colour, what
+:meth:`prt_torch.player.Player.colors` fixes it from), vertex colours are the tone-mapped surface radiance, and a
+textured character's interior pixels are shaded per pixel from the linear radiance and the texture, as
+:meth:`prt_torch.player.Player.render_frame` does. Without ``albedo`` (or a white one) images are the radiance's own.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from prt_torch.scoring.statistics import image_sse
+
+if TYPE_CHECKING:
+    from prt_torch.player.material import SurfaceAlbedo
 
 #: the player's default window ``(H, W)`` (``Player(window_size=...)``)
 WINDOW_HW = (480, 640)
@@ -54,26 +63,47 @@ class ImageRenderer:
     Args:
         rest_vertices: ``(V, 3)``; faces: ``(T, 3)`` of the character.
         camera: :func:`player_camera`.
+        albedo: the character's base colour (:func:`prt_torch.player.material.surface_albedo`); ``None``: white.
     """
 
     BACKGROUND = (0.08, 0.08, 0.1)  # the MeshRenderer default (the player's)
 
-    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> None:
+    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, camera: Camera,
+                 albedo: SurfaceAlbedo | None = None) -> None:
         from prt_torch.player.render import MeshRenderer, has_display, quiet_vtk_display_probe
 
         if not has_display():
             quiet_vtk_display_probe()
         h, w = camera.window_hw
         self.camera = camera
-        self.renderer = MeshRenderer(rest_vertices, faces, window_size=(w, h), off_screen=True)
+        self.albedo = albedo
+        tex = albedo is not None and albedo.texture is not None
+        self.renderer = MeshRenderer(rest_vertices, faces, window_size=(w, h), off_screen=True,
+                                     uv=albedo.uv if tex else None, texture=albedo.texture if tex else None)
         self.renderer.set_camera(camera.eye, camera.center)
         self.n_vertices = int(np.asarray(rest_vertices).shape[0])
         self._white = np.full((self.n_vertices, 3), 255, np.uint8)
 
-    def render(self, positions: np.ndarray, colors: np.ndarray) -> np.ndarray:
-        """``(H, W, 3)`` uint8 image of the mesh at ``positions (V, 3)`` with vertex ``colors (V, 3)`` uint8."""
-        self.renderer.update(np.asarray(positions, dtype=np.float32), colors)
+    def surface(self, radiance: np.ndarray) -> np.ndarray:
+        """The surface radiance ``(..., V, 3)`` of ``radiance (..., V, 3)``: times the per-vertex base colour
+        (:meth:`prt_torch.player.material.SurfaceAlbedo.apply`; the array itself without an albedo)."""
+        return radiance if self.albedo is None else self.albedo.apply(radiance)
+
+    def render(self, positions: np.ndarray, colors: np.ndarray, radiance: np.ndarray | None = None,
+               tonemap: Any = None) -> np.ndarray:
+        """``(H, W, 3)`` uint8 image of the mesh at ``positions (V, 3)`` with vertex ``colors (V, 3)`` uint8; a
+        textured character's interior pixels are shaded per pixel from the linear ``radiance (V, 3)`` (without
+        its base colour) and ``tonemap`` when given."""
+        self.renderer.update(np.asarray(positions, dtype=np.float32), colors, radiance=radiance, tonemap=tonemap)
         return self.renderer.render()
+
+    def render_radiance(self, positions: np.ndarray, radiance: np.ndarray, tonemap: Any) -> np.ndarray:
+        """The player's image of ``radiance (V, 3)`` (linear, without the base colour) at ``positions (V, 3)``
+        under ``tonemap``: vertex colours ``tonemap(surface(radiance))``, textured pixels per pixel."""
+        r = np.asarray(radiance)
+        per_pixel = self.albedo is not None and self.albedo.texture is not None
+        return self.render(positions, tonemap(self.surface(r)), radiance=r if per_pixel else None,
+                           tonemap=tonemap if per_pixel else None)
 
     def mask(self, positions: np.ndarray) -> np.ndarray:
         """``(H, W)`` bool: pixels fully covered by the mesh (white vertices on black read 255 everywhere)."""
@@ -87,13 +117,14 @@ class ImageRenderer:
 
     def frame_images(self, positions: np.ndarray, radiance: Mapping[str, np.ndarray], truth: str,
                      mask: np.ndarray | None = None) -> FrameImages:
-        """Render every ``radiance[name] (V, 3)`` with ONE tone map fixed from ``radiance[truth]``; images,
-        mask and the image SSE of each entry vs the truth."""
+        """Render every ``radiance[name] (V, 3)`` (linear, without the base colour) with ONE tone map fixed from
+        the truth's surface radiance ``surface(radiance[truth])`` (the player's rule); images, mask and the image
+        SSE of each entry vs the truth."""
         from prt_torch.player.tonemap import auto_tonemap
 
-        tm = auto_tonemap(radiance[truth])
+        tm = auto_tonemap(self.surface(radiance[truth]))
         m = self.mask(positions) if mask is None else mask
-        imgs = {name: self.render(positions, tm(np.asarray(r))) for name, r in radiance.items()}
+        imgs = {name: self.render_radiance(positions, r, tm) for name, r in radiance.items()}
         sse = {name: image_sse(img, imgs[truth], m) for name, img in imgs.items()}
         return FrameImages(imgs, m, sse, tm)
 
