@@ -435,14 +435,13 @@ class Player:
         from prt_torch.player.render import has_display
         from prt_torch.player.video import VideoWriter, write_png
 
-        source = self.character.clip(clip)  # a Clip passes through (e.g. a split's frame range of a clip)
-        locals_ = self.clip_locals(source, fps)
-        clip = source.name
+        locals_ = self.clip_locals(clip, fps)
+        rate = float(fps or self.character.clip(clip).fps)  # a Clip (e.g. a split's frame range) passes through
+        clip = clip if isinstance(clip, str) else clip.name
         n = len(locals_) if max_frames is None else max(0, min(int(max_frames), len(locals_)))
         check(n > 0, f"clip {clip!r}: nothing to play (max_frames={max_frames})")
         if show and not has_display():
             raise PrtError("no display for an interactive window: pass --out video.mp4 or --png DIR instead")
-        rate = float(fps or source.fps)
         timer = FrameTimer()
         outputs: list[Path] = []
         writer = VideoWriter(out, fps=rate) if out is not None else None
