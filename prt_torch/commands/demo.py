@@ -97,7 +97,6 @@ def run(args: argparse.Namespace) -> int:
     if not heldout:
         raise PrtError(f"{cfg_path}: the demo needs a held-out clip (character.heldout_clips)")
     from prt_torch.player import Player
-    from prt_torch.rig.clip import Clip
     from prt_torch.rig.config import as_clip_range
 
     entry = as_clip_range(heldout[0])  # a whole clip or a frame range of one (a within-clip split)
@@ -113,26 +112,25 @@ def run(args: argparse.Namespace) -> int:
     elif run.scene_json.is_file():
         run.scene_json.unlink()
     player = Player(run, env=args.env, brdf=args.brdf, window_size=(h, w))
+    held = ds.clip_by_name(clip, player.character, cfg.character.fps)  # its frames, by the one clip-name rule
     scene_metrics: dict[str, Any] | None = None
     try:
         console.print(f"[bold]4/5 compare[/] held-out '{clip}': truth | model | unshadowed -> {run.demo_image}")
         comp = compare_heldout(player, ds, clip, run.demo_image)
         if scene is not None:
             console.print("  the scene (floor, cast shadows): whole-scene Embree truth vs the player's composition")
-            scene_metrics = scene_row(run, ds, scene, clip, comp["comparison_row"], cfg.character.fps, args.env,
-                                      args.brdf, (h, w), run.demo_image)
+            scene_metrics = scene_row(run, ds, scene, held.source, comp["comparison_row"], cfg.character.fps,
+                                      args.env, args.brdf, (h, w), run.demo_image)
         seconds["compare"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         console.print(f"[bold]5/5 play[/] held-out clip '{clip}' with onnxruntime -> {run.demo_video}"
                       + (" (the scene: floor and cast shadows)" if scene is not None else ""))
-        fps = cfg.character.fps
-        frames = player.clip_locals(entry.clip, fps)[entry.frame_slice(fps)]
         if scene is None:
-            res = player.play(Clip(clip, fps, frames), out=run.demo_video, max_frames=args.max_frames,
+            res = player.play(held.clip, out=run.demo_video, max_frames=args.max_frames,
                               timings=run.timings_path(run.demo_video))
             play_summary = {"frames": res.frames, **res.summary}
         else:
-            play_summary = play_scene(run, scene, Clip(clip, fps, frames), args, (h, w))
+            play_summary = play_scene(run, scene, held.clip, args, (h, w))
         seconds["play"] = time.perf_counter() - t0
     finally:
         player.close()
@@ -271,9 +269,10 @@ def play_scene(run: Any, scene: Any, clip: Any, args: Any, hw: tuple[int, int]) 
 
 def scene_row(run: Any, ds: Any, scene: Any, clip: str, row: int, fps: float, env: Any, brdf: str,
               hw: tuple[int, int], out: Path) -> dict[str, Any]:
-    """A third row for the comparison PNG ``out`` at dataset ``row`` (a frame of ``clip``): the scene rendered
-    with whole-scene Embree truth | the player's composition (model x ground half-space, SHEXP floor) | 4x
-    |difference|, one tone map from the truth. Returns that frame's figures."""
+    """A third row for the comparison PNG ``out`` at dataset ``row``: the scene rendered with whole-scene Embree
+    truth | the player's composition (model x ground half-space, SHEXP floor) | 4x |difference|, one tone map from
+    the truth. ``clip``: the character clip the row's ``frame_index`` indexes (the held-out entry's source, by the
+    one clip-name rule). Returns that frame's figures."""
     from prt_torch.player.scene import SceneFrame, ScenePlayer
     from prt_torch.player.video import write_png
     from prt_torch.scene.scene import pose_actor

@@ -165,3 +165,22 @@ def test_clip_by_name_rule() -> None:
     assert clip_by_name(ch, "run").clip is ch.clips["run"]
     with pytest.raises(PrtError, match=rf"unknown clip 'moonwalk'.*split clips: .*'{NAME}'"):
         clip_by_name(ch, "moonwalk", cfg)
+
+
+def test_demo_plays_and_scores_the_split(run_dir: Path) -> None:
+    """``prt demo`` on the run (bake, fit, export up to date) with a floor: the held-out video is the split's
+    frames, and the scene row poses the entry's source clip at the compared row's frame."""
+    pytest.importorskip("pyvista")
+    rows, _ = source_poses(run_dir)
+    cfg = run_dir.parent / "within_clip_scene.yaml"
+    cfg.write_text(yaml.safe_dump({**CONFIG, "run_dir": str(run_dir), "scene": {"ground": {"resolution": 8}}}))
+    rd = RunDir(run_dir)
+    try:
+        assert main(["demo", "--config", str(cfg), "--size", "48x64"]) == 0
+    finally:
+        rd.scene_json.unlink(missing_ok=True)  # the other tests compare the run without a scene
+    m = json.loads(rd.demo_metrics.read_text())
+    assert m["heldout_clip"] == NAME and m["play"]["frames"] == len(rows)
+    row = m["heldout"]["comparison_row"]
+    assert row in rows and m["scene"]["frame_index"] == int(rd.dataset().frame_index[row]) >= START
+    assert np.isfinite(m["scene"]["vis_rel_err_in_scene"])
