@@ -112,16 +112,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _heldout_clip(run: Any) -> str:
-    """The first held-out clip of the run's dataset (else ``wave``; also without a dataset)."""
+    """The character clip of the run's first held-out entry (else ``wave``; also without a dataset): its source by
+    the one clip-name rule (:meth:`prt_torch.bake.store.BakedDataset.clip_by_name`), since a scene names clips of
+    the character (a within-clip split's entry is a frame range of one)."""
     from prt_torch.errors import MissingArtifact
 
     try:
-        cfg = run.dataset().run_config()
+        ds = run.dataset()
     except MissingArtifact:
         return "wave"
+    cfg = ds.run_config()
     held = cfg.character.heldout_clips if cfg is not None else []
     if held:
         from prt_torch.rig.config import as_clip_range
 
-        return as_clip_range(held[0]).dataset_name
+        return ds.clip_by_name(as_clip_range(held[0]).dataset_name, run.character()).source
     return "wave"

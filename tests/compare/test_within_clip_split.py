@@ -184,3 +184,11 @@ def test_demo_plays_and_scores_the_split(run_dir: Path) -> None:
     row = m["heldout"]["comparison_row"]
     assert row in rows and m["scene"]["frame_index"] == int(rd.dataset().frame_index[row]) >= START
     assert np.isfinite(m["scene"]["vis_rel_err_in_scene"])
+
+
+def test_bench_scene_takes_the_split_source(run_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``prt bench scene`` (a scene names clips of the character) plays the held-out entry's source clip."""
+    capsys.readouterr()
+    assert main(["bench", "scene", str(run_dir), "--frames", "1", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["clip"] == SOURCE and out["frames"] == 1
