@@ -1,0 +1,191 @@
+"""Peak-light visibility through sphere blockers: analytic cone-sphere occlusion (issue 27, ``peaks_spheres``).
+
+What Unreal's capsule direct shadows do, with spheres and the exact spherical-cap overlap instead of a
+smoothstep. A peak light is a uniform disc on the sky: the cone (spherical cap) of half-angle ``a`` (its angular
+radius) about its unit direction ``l``. Seen from a receiver ``p``, a sphere ``(c, R)`` with ``d = |c - p| > R`` is
+the cap of half-angle ``b = asin(R / d)`` about ``(c - p) / d``; the fraction of the light it hides is the solid
+angle of the intersection of the two caps over the light's ``2 pi (1 - cos a)``.
+
+**Cap intersection** (:func:`cap_intersection`; caps of half-angles ``a, b`` in ``[0, pi/2]``, axes ``gamma``
+apart): ``0`` when ``gamma >= a + b``, the smaller cap when ``gamma <= |a - b|``, else the lens. The lens is
+bounded by two circle arcs meeting at the corners ``X, X'``; with the spherical triangle ``(C_a, C_b, X)`` of sides
+``a, b, gamma`` (angles ``phi_a`` at ``C_a``, ``phi_b`` at ``C_b``, spherical excess ``E``), the lens is the two
+cap sectors minus the kite ``C_a X C_b X'``::
+
+    Omega = 2 phi_a (1 - cos a) + 2 phi_b (1 - cos b) - 2 E
+
+which is Gauss-Bonnet's ``2 (pi - psi) - 2 phi_a cos a - 2 phi_b cos b`` (``psi`` the triangle's angle at ``X``;
+Tovchigrechko & Vakser 2001, Mazonka 2012 "Solid angle of conical surfaces, polyhedral cones, and intersecting
+spherical caps", arXiv:1205.1396) with ``E = phi_a + phi_b + psi - pi`` taken out, written so that no term cancels
+for a sun-sized ``a`` (0.005 rad: the textbook form loses 7 digits there): ``1 - cos x = 2 sin^2(x / 2)``, the
+angles by the half-angle formulas ``tan(phi_a / 2) = sqrt(sin(s - a) sin(s - gamma) / (sin s sin(s - b)))``
+(``s = (a + b + gamma) / 2``) and the excess by L'Huilier's theorem ``tan(E / 4) = sqrt(tan(s/2) tan((s-a)/2)
+tan((s-b)/2) tan((s-gamma)/2))``. With ``gamma`` clamped to ``[|a - b|, a + b]`` the same expression is ``0`` and
+the smaller cap at the two ends, so it holds everywhere (identical caps, ``gamma = 0, a = b``, is set apart).
+
+**Visibility** (:func:`sphere_peak_visibility`): per receiver and peak,
+``H * prod_s (1 - occlusion_s)`` -- the spheres are combined as *independent occluders* (the product of the
+per-sphere visible fractions; exact when at most one sphere overlaps the disc, too dark where overlapping spheres
+hide the same part of it). ``H`` is the share of the disc above the receiver's horizon (the cap of half-angle
+``pi / 2`` about the normal: :func:`cap_intersection` again), so that samples below the horizon count as not
+visible, the rule of the Embree oracle :func:`prt_torch.bake.peaks.exact_peak_visibility`. A sphere that contains
+the receiver (``d <= R``) is ignored, as in SHEXP (:mod:`prt_torch.shexp.visibility`).
+
+numpy or torch, the same code (torch is never imported here: numpy inputs never touch it); the pairs that overlap
+are found with one test without trigonometry (``gamma < a + b`` iff ``(c - p) . l > cos a sqrt(d^2 - R^2) - R sin
+a``) and only they go through the formula (their geometry gathered again, exactly); the product over spheres is a
+sum of ``log(1 - occlusion)`` per receiver and peak (``bincount`` / ``index_add_``), full occlusions counted apart.
+Measured on the built-in character (11.7k vertices, 48 spheres, one frame, numpy float32, 2 shared cores): 4.5 ms
+for one peak, 7.6 ms for two.
+"""
+
+from __future__ import annotations
+
+import math
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, TypeVar
+
+import numpy as np
+
+from prt_torch.errors import check
+from prt_torch.sh.basis import check_float_array, is_torch
+from prt_torch.shapes import check_shape
+
+if TYPE_CHECKING:
+    import torch
+
+Array = TypeVar("Array", "np.ndarray", "torch.Tensor")
+
+
+def _xp(x: Any) -> ModuleType:
+    if is_torch(x):
+        import torch
+
+        return torch
+    return np
+
+
+def cap_solid_angle(half_angle: Array) -> Array:
+    """Solid angle ``2 pi (1 - cos x) = 4 pi sin^2(x / 2)`` of caps of half-angles ``x`` (radians, any shape)."""
+    xp = _xp(half_angle)
+    return 4 * math.pi * xp.sin(half_angle / 2) ** 2
+
+
+def cap_intersection(a: Array, b: Array, gamma: Array) -> Array:
+    """Solid angle of the intersection of two spherical caps (module doc for the formula).
+
+    Args:
+        a, b: the caps' half-angles, radians in ``[0, pi/2]`` (broadcast together).
+        gamma: the angle between their axes, radians in ``[0, pi]``.
+
+    Returns:
+        The intersection's solid angle (sr), the broadcast shape, the inputs' type and dtype.
+    """
+    xp = _xp(gamma)
+    lo = xp.abs(a - b)
+    g = xp.clip(xp.clip(gamma, lo, None), None, a + b)  # beyond a + b: no lens; below |a - b|: containment
+    s = (a + b + g) / 2
+    sa, sb, sg = xp.clip(s - a, 0.0, None), xp.clip(s - b, 0.0, None), xp.clip(s - g, 0.0, None)
+    sin_s = xp.sin(s)
+    phi_a = 2 * xp.arctan2(xp.sqrt(xp.sin(sa) * xp.sin(sg)), xp.sqrt(sin_s * xp.sin(sb)))
+    phi_b = 2 * xp.arctan2(xp.sqrt(xp.sin(sb) * xp.sin(sg)), xp.sqrt(sin_s * xp.sin(sa)))
+    excess = 4 * xp.arctan(xp.sqrt(xp.tan(s / 2) * xp.tan(sa / 2) * xp.tan(sb / 2) * xp.tan(sg / 2)))
+    lens = 4 * phi_a * xp.sin(a / 2) ** 2 + 4 * phi_b * xp.sin(b / 2) ** 2 - 2 * excess
+    inside = gamma <= lo  # the smaller cap, also for identical caps (a = b, gamma = 0, where the lens is 0 / 0)
+    return xp.clip(xp.where(inside, cap_solid_angle(xp.minimum(a, b)), lens), 0.0, None)
+
+
+def _cross_norm(u: Array, w: Array) -> Array:
+    """``|u x w|`` over the last axis (explicit components: numpy and torch alike)."""
+    cx = u[..., 1] * w[..., 2] - u[..., 2] * w[..., 1]
+    cy = u[..., 2] * w[..., 0] - u[..., 0] * w[..., 2]
+    cz = u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0]
+    return (cx * cx + cy * cy + cz * cz) ** 0.5
+
+
+def horizon_fraction(normals: Array, directions: Array, angular_radii: Array) -> Array:
+    """``(..., V, P)``: the share of each peak's disc above each receiver's horizon (``n . w > 0``); the formula runs
+    only where the horizon cuts the disc (``|n . l| < sin a``), elsewhere the share is 1 or 0.
+
+    Args:
+        normals: ``(..., V, 3)`` unit receiver normals.
+        directions: ``(P, 3)`` unit peak directions.
+        angular_radii: ``(P,)`` the discs' half-angles (radians, in ``(0, pi/2]``).
+    """
+    xp = _xp(normals)
+    cos_g = normals @ directions.T  # (..., V, P)
+    out = (cos_g > 0) * xp.ones_like(cos_g)
+    cut = _nonzero(xp.abs(cos_g) < xp.sin(angular_radii))
+    if cut[0].shape[0]:
+        a = angular_radii[cut[-1]]
+        gamma = xp.arctan2(_cross_norm(normals[cut[:-1]], directions[cut[-1]]), cos_g[cut])
+        out[cut] = cap_intersection(a, 0 * a + math.pi / 2, gamma) / cap_solid_angle(a)
+    return out
+
+
+def _nonzero(mask: Any) -> tuple[Any, ...]:
+    return mask.nonzero(as_tuple=True) if is_torch(mask) else np.nonzero(mask)
+
+
+def _sum_at(index: Any, weights: Any, size: int) -> Any:
+    """``out[i] = sum of weights[index == i]``, ``(size,)``."""
+    if is_torch(weights):
+        return weights.new_zeros(size).index_add_(0, index, weights)
+    return np.bincount(index, weights, minlength=size).astype(weights.dtype, copy=False)
+
+
+def sphere_peak_visibility(positions: Array, normals: Array, centers: Array, radii: Array, directions: Array,
+                           angular_radii: Array) -> Array:
+    """Visible fraction of each peak's disc at each receiver, through sphere blockers (module doc).
+
+    Args:
+        positions: ``(..., V, 3)`` receiver points, world (z up).
+        normals: ``(..., V, 3)`` their unit normals (the horizon).
+        centers: ``(..., S, 3)`` posed sphere centres (:func:`prt_torch.blockers.pose_spheres`), the same leading
+            axes as ``positions``.
+        radii: ``(S,)`` sphere radii (> 0).
+        directions: ``(P, 3)`` unit peak directions (towards the light).
+        angular_radii: ``(P,)`` the peaks' angular radii (half-angles, radians, in ``(0, pi/2]``).
+
+    Returns:
+        ``(..., V, P)`` in ``[0, 1]``, the dtype and array type of ``positions`` (numpy or torch).
+    """
+    xp = _xp(positions)
+    for x, name in ((positions, "receiver positions"), (normals, "receiver normals"), (centers, "sphere centres"),
+                    (directions, "peak directions")):
+        check_float_array(x, name)
+    dims = check_shape(positions, "... V 3", name="receiver positions")
+    check_shape(normals, positions.shape, name="receiver normals")
+    check_shape(centers, (*positions.shape[:-2], "S", 3), name="sphere centres", dims=dims)
+    check_shape(radii, "S", name="sphere radii", dims=dims)
+    check_shape(directions, "P 3", name="peak directions", dims=dims)
+    check_shape(angular_radii, "P", name="peak angular radii", dims=dims)
+    ar = check_float_array(angular_radii, "peak angular radii")
+    check(bool((ar > 0).all() and (ar <= math.pi / 2).all()), "peak angular radii must be in (0, pi/2] radians")
+    check(bool((check_float_array(radii, "sphere radii") > 0).all()), "sphere radii must be > 0")
+    lead, (V, S, P) = positions.shape[:-2], (dims["V"], dims["S"], dims["P"])
+    B = int(np.prod(lead, dtype=np.int64))
+    # the test gamma < a + b on every (receiver, sphere, peak), in (..., P, V, S) order, without trigonometry:
+    # (c - p) . l + R sin a > cos a |c - p| cos b; a sphere containing the receiver gets |c - p| cos b = inf
+    d2 = ((positions * positions).sum(-1)[..., :, None] + (centers * centers).sum(-1)[..., None, :]
+          - 2 * positions @ xp.swapaxes(centers, -1, -2))  # (..., V, S)
+    r2 = radii * radii
+    cos_b_d = xp.where(d2 > r2, xp.sqrt(xp.clip(d2 - r2, 0.0, None)), xp.full_like(d2, math.inf))
+    lp = xp.swapaxes(positions @ directions.T, -1, -2)  # (..., P, V)
+    lc = xp.swapaxes(centers @ directions.T, -1, -2) + xp.sin(angular_radii)[:, None] * radii  # (..., P, S)
+    hit = (lc[..., :, None, :] - lp[..., :, :, None]) > xp.cos(angular_radii)[:, None, None] * cos_b_d[..., None, :, :]
+    flat = _nonzero(hit.reshape(-1))[0]  # the overlapping triples, then their geometry gathered exactly
+    group = flat // S  # flat (..., P, V) index
+    s, v, p, b = flat % S, group % V, (group // V) % P, group // (V * P)
+    off = centers.reshape(B * S, 3)[b * S + s] - positions.reshape(B * V, 3)[b * V + v]  # (N, 3)
+    ln, rs = directions[p], radii[s]
+    gamma = xp.arctan2(_cross_norm(ln, off), (ln * off).sum(-1))
+    beta = xp.arctan2(rs, xp.sqrt(xp.clip((off * off).sum(-1) - rs * rs, 0.0, None)))
+    frac = cap_intersection(angular_radii[p], beta, gamma) / cap_solid_angle(angular_radii[p])
+    # product over spheres: the sum of log(1 - occlusion) per (receiver, peak), a full occlusion counted apart
+    full = frac >= 1
+    logs = xp.log(xp.where(full, xp.ones_like(frac), 1 - frac))
+    n_full = _sum_at(group, full * xp.ones_like(frac), B * P * V)
+    vis = xp.exp(_sum_at(group, logs, B * P * V)) * (n_full == 0)
+    vis = xp.swapaxes(vis.reshape(*lead, P, V), -1, -2)
+    return horizon_fraction(normals, directions, angular_radii) * vis
