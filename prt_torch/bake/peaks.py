@@ -62,23 +62,27 @@ def _tangents(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t, np.cross(directions, t)
 
 
+def _cap_coordinates(radii: np.ndarray, disc: np.ndarray) -> np.ndarray:
+    """``(P, S, 3)`` float64: the equal-area map of disc points ``(S, 2)`` onto caps of half-angles ``radii (P,)``,
+    in each cap's frame (``z`` its axis)."""
+    k = 2 * np.sin(np.asarray(radii, dtype=np.float64) / 2) ** 2  # 1 - cos r, no cancellation
+    xy = np.asarray(disc, dtype=np.float64)[None]  # (1, S, 2)
+    rho2k = (xy * xy).sum(-1) * k[:, None]  # (P, S): 1 - cos theta
+    scale = np.sqrt(np.clip(k[:, None] * (2 - rho2k), 0.0, None))  # sin theta / rho
+    return np.stack([xy[..., 0] * scale, xy[..., 1] * scale, 1 - rho2k], axis=-1)
+
+
 def cap_directions(directions: np.ndarray, radii: np.ndarray, disc: np.ndarray) -> np.ndarray:
-    """``(..., P, S, 3)`` float64 unit directions of the caps (equal-area map of disc points, module doc).
+    """``(P, S, 3)`` float64 unit directions of the caps: the equal-area map of disc points (module doc).
 
     Args:
         directions: ``(P, 3)`` unit cap axes.
         radii: ``(P,)`` half-angles (radians).
-        disc: ``(..., S, 2)`` points of the unit disc.
+        disc: ``(S, 2)`` points of the unit disc.
     """
     d = np.asarray(directions, dtype=np.float64)
-    k = 2 * np.sin(np.asarray(radii, dtype=np.float64) / 2) ** 2  # 1 - cos r, no cancellation
     t, b = _tangents(d)
-    xy = np.asarray(disc, dtype=np.float64)[..., None, :, :]  # (..., 1, S, 2)
-    rho2k = (xy * xy).sum(-1) * k[:, None]  # (..., P, S): 1 - cos theta
-    scale = np.sqrt(np.clip(k[:, None] * (2 - rho2k), 0.0, None))  # sin theta / rho
-    out = (1 - rho2k)[..., None] * d[:, None, :]
-    out = out + (xy[..., 0] * scale)[..., None] * t[:, None, :] + (xy[..., 1] * scale)[..., None] * b[:, None, :]
-    return out
+    return np.einsum("psk,pkj->psj", _cap_coordinates(radii, disc), np.stack([t, b, d], axis=1))
 
 
 def exact_peak_visibility(positions: np.ndarray, normals: np.ndarray, directions: np.ndarray, radii: np.ndarray,
@@ -124,18 +128,22 @@ def exact_peak_visibility(positions: np.ndarray, normals: np.ndarray, directions
     S = disc.shape[0]
     turn = (np.zeros(V) if seed is None else
             np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x7E5A])).uniform(0, 2 * math.pi, V))
+    local = _cap_coordinates(rad, disc).astype(np.float32)  # (P, S, 3)
+    t, b = _tangents(dirs)
     origins_all = (pos + offset * nrm).astype(np.float32)
     visible = np.empty((V, P), dtype=np.float32)
     vb = max(1, max_rays // (P * S))
     for v0 in range(0, V, vb):  # memory chunks of whole receivers, one Embree call each
         v1 = min(V, v0 + vb)
-        c, s = np.cos(turn[v0:v1])[:, None], np.sin(turn[v0:v1])[:, None]
-        turned = np.stack([c * disc[:, 0] - s * disc[:, 1], s * disc[:, 0] + c * disc[:, 1]], axis=-1)  # (n, S, 2)
-        w = cap_directions(dirs, rad, turned)  # (n, P, S, 3)
-        up = np.einsum("npsk,nk->nps", w, nrm[v0:v1]) > 0
+        c, s = np.cos(turn[v0:v1])[:, None, None], np.sin(turn[v0:v1])[:, None, None]
+        basis = np.stack([c * t + s * b, c * b - s * t, np.broadcast_to(dirs, (v1 - v0, P, 3))], axis=2)  # (n,P,3,3)
+        basis = basis.astype(np.float32)  # each receiver's cap frames, turned about the axes by its angle
+        n_dot = np.einsum("npkj,nj->npk", basis, nrm[v0:v1].astype(np.float32))  # n . (t, b, d)
+        up = np.einsum("psk,npk->nps", local, n_dot) > 0
         idx = np.nonzero(up)
         escaped = np.zeros(up.shape, dtype=bool)
         if idx[0].size:
-            escaped[idx] = ~scene.occluded(origins_all[v0:v1][idx[0]], w[idx].astype(np.float32))
+            w = np.einsum("rk,rkj->rj", local[idx[1], idx[2]], basis[idx[0], idx[1]])  # (N, 3) above the horizon
+            escaped[idx] = ~scene.occluded(origins_all[v0:v1][idx[0]], w)
         visible[v0:v1] = escaped.mean(axis=-1, dtype=np.float64).astype(np.float32)
     return visible

@@ -116,10 +116,9 @@ def horizon_fraction(normals: Array, directions: Array, angular_radii: Array) ->
     cos_g = normals @ directions.T  # (..., V, P)
     out = (cos_g > 0) * xp.ones_like(cos_g)
     cut = _nonzero(xp.abs(cos_g) < xp.sin(angular_radii))
-    if cut[0].shape[0]:
-        a = angular_radii[cut[-1]]
-        gamma = xp.arctan2(_cross_norm(normals[cut[:-1]], directions[cut[-1]]), cos_g[cut])
-        out[cut] = cap_intersection(a, 0 * a + math.pi / 2, gamma) / cap_solid_angle(a)
+    a = angular_radii[cut[-1]]
+    gamma = xp.arctan2(_cross_norm(normals[cut[:-1]], directions[cut[-1]]), cos_g[cut])
+    out[cut] = cap_intersection(a, 0 * a + math.pi / 2, gamma) / cap_solid_angle(a)
     return out
 
 
