@@ -194,8 +194,15 @@ def test_bench_play_deformable_ratios(deformable_run, capsys: pytest.CaptureFixt
 
 
 def test_play_writes_video_and_timings(player, tmp_path: Path) -> None:
+    """play() writes the video and the timings. It aims the camera at the sequence (frame_sequence), which moves the
+    eye the shared module player's other tests shade with: the view is restored afterwards, so no test depends on
+    whether this one ran first."""
     seq = player.make_sequence(heldout_positions(), name="held")
-    res = player.play(seq, out=tmp_path / "held.mp4", max_frames=4, timings=tmp_path / "t.json", progress=False)
+    view = (player.center, player.radius, player.camera_azimuth, player.camera_elevation)
+    try:
+        res = player.play(seq, out=tmp_path / "held.mp4", max_frames=4, timings=tmp_path / "t.json", progress=False)
+    finally:
+        player.center, player.radius, player.camera_azimuth, player.camera_elevation = view
     assert res.frames == 4 and (tmp_path / "held.mp4").stat().st_size > 0
     t = json.loads((tmp_path / "t.json").read_text())
     assert t["clip"] == "held" and set(t["frames_ms"]) >= {"pose", "visibility", "shading", "render"}
