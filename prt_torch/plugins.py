@@ -35,5 +35,6 @@ def load(ref: str) -> Any:
 
 
 def hooks(table: StageTable) -> list[Any]:
-    """Every hook of ``table``, loaded, in the table's order (packages in :data:`METHOD_PACKAGES` order)."""
-    return [load(ref) for package in METHOD_PACKAGES for ref in table.get(package, ())]
+    """Every hook of ``table``, loaded, in the table's own order: a stage runs (and shows) its hooks in the order
+    its table lists them."""
+    return [load(ref) for refs in table.values() for ref in refs]

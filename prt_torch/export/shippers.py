@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import PrtError
-from prt_torch.plugins import StageTable, load
+from prt_torch.plugins import StageTable, hooks
 from prt_torch.rundir import RunDir
 
 #: the shippers of each method package (:class:`Shipper` references); they ship in this table's order (the order
@@ -152,7 +152,7 @@ class Shipper:
 
 def shippers() -> list[Shipper]:
     """Every :class:`Shipper` of :data:`SHIPPERS`, loaded, in the table's order (the order they ship in)."""
-    return [load(ref) for refs in SHIPPERS.values() for ref in refs]
+    return hooks(SHIPPERS)
 
 
 def shipper_of(name: str) -> Shipper:

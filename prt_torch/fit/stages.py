@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from prt_torch.plugins import StageTable, load
+from prt_torch.plugins import StageTable, hooks
 
 #: the fit hooks of each method package (:class:`FitHook` references); they run in this table's order (transfer,
 #: local, s001: the order of their console lines)
@@ -62,4 +62,4 @@ class FitHook:
 
 def fit_hooks() -> list[FitHook]:
     """Every :class:`FitHook` of :data:`FIT_STAGES`, loaded, in the table's order (the order they run in)."""
-    return [load(ref) for refs in FIT_STAGES.values() for ref in refs]
+    return hooks(FIT_STAGES)

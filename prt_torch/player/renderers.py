@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from prt_torch.errors import PrtError
-from prt_torch.plugins import StageTable, load
+from prt_torch.plugins import StageTable, hooks
 
 if TYPE_CHECKING:
     from prt_torch.player.player import Player
@@ -71,7 +71,7 @@ RENDERERS: StageTable = {
 
 def renderers() -> list[Renderer]:
     """``onnx`` first, then the method packages' renderers in :data:`RENDERERS` order (hook modules imported)."""
-    return [ONNX, *(load(ref) for refs in RENDERERS.values() for ref in refs)]
+    return [ONNX, *hooks(RENDERERS)]
 
 
 def renderer(name: str) -> Renderer:
