@@ -9,47 +9,21 @@ hash: the dataset and the export still verify)."""
 from __future__ import annotations
 
 import math
-import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from prt_torch.rig.material import MATERIAL_BRDF, Material
+from prt_torch.rig.material import MATERIAL_BRDF
+from tests.textured import CHECKER_ROUGHNESS, textured_copy
 from tests.tolerance import assert_bitwise
-
-#: the texture's material: roughness 0.4 (a Cook-Torrance RPO unlike the catalogue's), a warm factor
-TEXTURED = ("checker", (1.0, 0.9, 0.8, 1.0), 0.0, 0.4)
-
-
-def _checker() -> np.ndarray:
-    """64 x 64 sRGB texture: red and green ramps, blue 8-texel checker (contrast inside triangles)."""
-    yy, xx = np.mgrid[0:64, 0:64]
-    return np.stack([(xx * 4) % 256, (yy * 4) % 256, 255 * (((xx // 8) + (yy // 8)) % 2)], -1).astype(np.uint8)
-
-
-def _planar_uv(ch: Any) -> np.ndarray:
-    """Per-corner UVs ``(T, 3, 2)``: the front (x, z) projection of the rest pose."""
-    lo, hi = ch.rest_vertices.min(0), ch.rest_vertices.max(0)
-    x, z = ch.rest_vertices[:, 0], ch.rest_vertices[:, 2]
-    uv = np.stack([(x - lo[0]) / (hi[0] - lo[0]), (hi[2] - z) / (hi[2] - lo[2])], 1)
-    return uv[ch.faces].astype(np.float32)
 
 
 @pytest.fixture(scope="module")
 def textured_run(gltf_run: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of ``gltf_run`` (dataset and export included) whose character is textured."""
-    from prt_torch.rundir import RunDir
-
-    dst = tmp_path_factory.mktemp("textured_compare") / "run"
-    shutil.copytree(gltf_run, dst, ignore=shutil.ignore_patterns("compare", "report", "*.mp4"))
-    run = RunDir(dst)
-    ch = run.character()
-    ch.uv = _planar_uv(ch)
-    ch.material = Material(*TEXTURED, _checker())
-    ch.save(run.character_path)
-    return dst
+    return textured_copy(gltf_run, tmp_path_factory.mktemp("textured_compare") / "run")
 
 
 def test_compare_shades_and_renders_what_the_player_plays(textured_run: Path) -> None:
@@ -75,7 +49,7 @@ def test_compare_shades_and_renders_what_the_player_plays(textured_run: Path) ->
         assert list(rpos) == ["lambert", "phong", MATERIAL_BRDF] and strip_brdf(rpos) == MATERIAL_BRDF
         k = rpos[MATERIAL_BRDF].M.shape[0]
         assert_bitwise(np.asarray(rpos[MATERIAL_BRDF].M, np.float32), p.rpo.M[:k], why="one RPO file, loaded twice")
-        assert brdfs[MATERIAL_BRDF].roughness == pytest.approx(TEXTURED[3])
+        assert brdfs[MATERIAL_BRDF].roughness == pytest.approx(CHECKER_ROUGHNESS)
         camera = player_camera(ctx.character)
         np.testing.assert_allclose(camera.eye, p.eye, rtol=0, atol=1e-6)
         state = p.pose(p.clip_locals("twist")[3:4])
@@ -192,7 +166,7 @@ def test_compare_of_a_textured_character_scores_the_material(textured_run: Path,
     r = run_mod.run_compare(textured_run, methods=["unshadowed"], max_frames=3, image_frames=2,
                             reference_frames=1, reference_rays=8)
     assert r["brdfs"] == ["lambert", "phong", MATERIAL_BRDF] and r["strip_frame"]["brdf"] == MATERIAL_BRDF
-    assert r["material"]["has_texture"] and r["material"]["roughness"] == pytest.approx(TEXTURED[3])
+    assert r["material"]["has_texture"] and r["material"]["roughness"] == pytest.approx(CHECKER_ROUGHNESS)
     assert "texture" in r["material"]["albedo"]
     for m in r["methods"].values():
         for key in ("psnr_image_material", "radiance_rel_rmse_material", "psnr_vertex_material"):

@@ -16,40 +16,19 @@ from scipy import ndimage
 from prt_torch.errors import PrtError
 from prt_torch.player import Player
 from prt_torch.rig.material import DEFAULT_MATERIAL, Material, srgb_to_linear
+from tests.textured import textured_copy
 from tests.tolerance import assert_bitwise
 
 SIZE = (240, 320)  # (H, W) of the test renders
 BACKGROUND = np.array([0.08, 0.08, 0.1])  # MeshRenderer's default
 
 
-def _checker() -> np.ndarray:
-    """64 x 64 sRGB texture: red and green ramps, blue 8-texel checker (high contrast inside triangles)."""
-    yy, xx = np.mgrid[0:64, 0:64]
-    return np.stack([(xx * 4) % 256, (yy * 4) % 256, 255 * (((xx // 8) + (yy // 8)) % 2)], -1).astype(np.uint8)
-
-
-def _planar_uv(ch) -> np.ndarray:
-    """Per-corner UVs: the front (x, z) projection of the rest pose, ``v`` down from the top of the body."""
-    lo, hi = ch.rest_vertices.min(0), ch.rest_vertices.max(0)
-    x, z = ch.rest_vertices[:, 0], ch.rest_vertices[:, 2]
-    uv = np.stack([(x - lo[0]) / (hi[0] - lo[0]), (hi[2] - z) / (hi[2] - lo[2])], 1)
-    return uv[ch.faces].astype(np.float32)
-
-
 @pytest.fixture(scope="module")
 def textured_run(tiny_run: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of the tiny run whose character carries a checker-textured material (roughness 0.4); the material
     is not part of the character hash, so the export still verifies."""
-    from prt_torch.rundir import RunDir
-
-    dst = tmp_path_factory.mktemp("material") / "run"
-    shutil.copytree(tiny_run, dst, ignore=shutil.ignore_patterns("dataset.zarr", "compare", "report", "*.mp4"))
-    run = RunDir(dst)
-    ch = run.character()
-    ch.uv = _planar_uv(ch)
-    ch.material = Material("checker", (1.0, 0.9, 0.8, 1.0), 0.0, 0.4, _checker())
-    ch.save(run.character_path)
-    return dst
+    return textured_copy(tiny_run, tmp_path_factory.mktemp("material") / "run",
+                         ignore=("dataset.zarr", "compare", "report", "*.mp4"))
 
 
 def ray_traced(player: Player, positions: np.ndarray, radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -3,33 +3,17 @@ player, per pixel - or per vertex, matching the Python player - on the page)."""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from prt_torch.scoring.statistics import image_psnr
+from tests.textured import textured_copy
 
 
 def _textured_run(tiny_run: Path, dst: Path) -> Path:
-    """A copy of the tiny run whose character has a colourful checker texture through per-corner UVs (a material
-    is not part of the character hash, so the export still matches)."""
-    from prt_torch.rig.material import Material
-    from prt_torch.rundir import RunDir
-
-    shutil.copytree(tiny_run, dst, ignore=shutil.ignore_patterns("dataset.zarr", "compare", "report", "*.mp4"))
-    run = RunDir(dst)
-    ch = run.character()
-    yy, xx = np.mgrid[0:64, 0:64]
-    tex = np.stack([(xx * 4) % 256, (yy * 4) % 256, 255 * (((xx // 8) + (yy // 8)) % 2)], -1).astype(np.uint8)
-    lo, hi = ch.rest_vertices.min(0), ch.rest_vertices.max(0)
-    x, z = ch.rest_vertices[:, 0], ch.rest_vertices[:, 2]
-    uv_v = np.stack([(x - lo[0]) / (hi[0] - lo[0]), (hi[2] - z) / (hi[2] - lo[2])], 1)
-    ch.uv = uv_v[ch.faces].astype(np.float32)
-    ch.material = Material("checker", (1.0, 0.9, 0.8, 1.0), 0.0, 0.4, tex)
-    ch.save(run.character_path)
-    return dst
+    """A copy of the tiny run whose character has a colourful checker texture through per-corner UVs
+    (:func:`tests.textured.textured_copy`)."""
+    return textured_copy(tiny_run, dst, ignore=("dataset.zarr", "compare", "report", "*.mp4"))
 
 
 def test_textured_character_page_matches_player_and_samples_per_pixel(tiny_run: Path, chromium: str, browser: Any,
