@@ -71,6 +71,8 @@ _RESULTS_JSON = "results.json"
 _EXPORT_JSON = "export.json"
 _FRAMES = "frames.npz"
 _BLOCKERS = "blockers.npz"
+_PEAK_BLOCKERS = "peak_blockers.npz"
+_PEAKS_ONNX = "peaks.onnx"
 _SHEXP_ONNX = "shexp.onnx"
 _TRANSFER_ONNX = "transfer.onnx"  # the learned transfer graph (prt_torch.transfer.graph)
 _S001 = "s001.npz"
@@ -374,6 +376,17 @@ class RunDir:
     def blockers_path(self) -> Path:
         """``blockers.npz``: the character's sphere blockers (:class:`prt_torch.blockers.SphereSet`), ``prt export``."""
         return self.path / _BLOCKERS
+
+    @property
+    def peak_blockers_path(self) -> Path:
+        """``peak_blockers.npz``: the learned peak blockers (a :class:`prt_torch.blockers.SphereSet` fitted to the
+        bake's peak visibility, :mod:`prt_torch.fit.peaks`; ``prt train`` of a dataset baked with ``bake.peaks``)."""
+        return self.path / _PEAK_BLOCKERS
+
+    @property
+    def peak_graph_path(self) -> Path:
+        """``peaks.onnx``: the learned peak-visibility graph (:mod:`prt_torch.export.peaks_graph`, ``prt export``)."""
+        return self.path / _PEAKS_ONNX
 
     @property
     def s001(self) -> Path:

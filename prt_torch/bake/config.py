@@ -40,6 +40,21 @@ class SubsurfaceConfig(BaseModel):
     single: bool = True  # add single scattering to the dipole's multiple scattering
 
 
+class PeakBakeConfig(BaseModel):
+    """``bake.peaks``: record exact peak-light visibility (:func:`prt_torch.bake.peaks.exact_peak_visibility`) of
+    every baked frame, the training data of the learned peak blockers (:mod:`prt_torch.models.peak_blockers`).
+    Each frame gets ``directions`` disc lights of half-angle ``angular_radius_deg`` toward seeded directions
+    uniform over the sky above ``min_elevation_deg`` (world, z up: every root heading), ``disc_side^2`` rays per
+    vertex and disc (:func:`prt_torch.bake.peaks.record_directions`)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    directions: int = Field(default=4, ge=1, le=32)
+    angular_radius_deg: float = Field(default=1.0, ge=0.05, le=30.0)
+    disc_side: int = Field(default=3, ge=1, le=16)
+    min_elevation_deg: float = Field(default=5.0, ge=-90.0, lt=90.0)
+
+
 class BakeConfig(BaseModel):
     """How to ray-trace the ground truth.
 
@@ -95,6 +110,8 @@ class BakeConfig(BaseModel):
     matrix_bounces: int = Field(default=1, ge=0, le=2, json_schema_extra=recorded(absent=1))
     #: also bake the subsurface exit-radiance transfer (dipole + single scattering; needs ``transfer``)
     subsurface: SubsurfaceConfig | None = Field(default=None, json_schema_extra=recorded(absent=None))
+    #: also record exact peak-light visibility per frame (issue 27: the learned peak blockers' training data)
+    peaks: PeakBakeConfig | None = Field(default=None, json_schema_extra=recorded(absent=None))
 
     @model_validator(mode="after")
     def _matrix_keys(self) -> BakeConfig:

@@ -147,3 +147,32 @@ def exact_peak_visibility(positions: np.ndarray, normals: np.ndarray, directions
             escaped[idx] = ~scene.occluded(origins_all[v0:v1][idx[0]], w)
         visible[v0:v1] = escaped.mean(axis=-1, dtype=np.float64).astype(np.float32)
     return visible
+
+
+# -- the bake's record (``bake.peaks``): the learned peak blockers' training data ------------------------------------
+
+
+def record_directions(frame: int, count: int, min_elevation_deg: float, seed: int = 0) -> np.ndarray:
+    """``(count, 3)`` float32 unit world directions (z up) of one baked frame's recorded peaks: uniform in solid
+    angle over the sky above ``min_elevation_deg`` (every azimuth, so every root heading), seeded by ``(seed,
+    frame)`` so that a resumed or re-baked block records the very same directions."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(frame), 0x5EA7]))
+    z0 = math.sin(math.radians(float(min_elevation_deg)))
+    z = z0 + (1 - z0) * rng.random(count)
+    phi = 2 * math.pi * rng.random(count)
+    r = np.sqrt(np.clip(1 - z * z, 0.0, None))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).astype(np.float32)
+
+
+def record_frame(params: dict, frame: int, positions: np.ndarray, normals: np.ndarray, faces: np.ndarray,
+                 offset: float, scene: RayScene | None = None) -> dict[str, np.ndarray]:
+    """The ``bake.peaks`` arrays of one frame (``params`` = the recorded ``attrs["bake"]["peaks"]``):
+    ``peak_directions (D, 3)`` (:func:`record_directions`, the bake's ``seed``) and ``peak_visibility (V, D)``
+    float32, :func:`exact_peak_visibility` of discs of ``angular_radius_deg`` with ``disc_side^2`` rays each."""
+    d = record_directions(frame, int(params["directions"]), float(params["min_elevation_deg"]),
+                          int(params.get("seed", 0)))
+    radii = np.full(len(d), math.radians(float(params["angular_radius_deg"])))
+    vis = exact_peak_visibility(positions, normals, d.astype(np.float64), radii, offset,
+                                faces=None if scene is not None else faces, scene=scene,
+                                side=int(params["disc_side"]), seed=int(frame))
+    return {"peak_directions": d, "peak_visibility": vis}

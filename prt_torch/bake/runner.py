@@ -39,6 +39,7 @@ from prt_torch.bake.deformable import clusters as deformable_clusters
 from prt_torch.bake.deformable import frame_operator, is_deformable, posed_frames, source_of
 from prt_torch.bake.embree import ray_offset, require_embreex
 from prt_torch.bake.extras import ArraySpec, BakeExtra, TracedFrame, bake_extras
+from prt_torch.bake.peaks import record_frame
 from prt_torch.bake.plan import BakePlan, make_plan
 from prt_torch.bake.store import (
     FORMAT_VERSION,
@@ -110,7 +111,8 @@ class BakeResult:
 
 
 #: the per-frame arrays the core bake itself makes (the others come from :data:`prt_torch.bake.extras.BAKE_EXTRAS`)
-CORE_RESULTS = ("positions", "normals", "frames", "visibility", "transfer", "subsurface")
+CORE_RESULTS = ("positions", "normals", "frames", "visibility", "transfer", "subsurface", "peak_directions",
+                "peak_visibility")
 
 
 # -- worker side ---------------------------------------------------------------------------------
@@ -198,6 +200,9 @@ def bake_block(task: BlockTask) -> BlockStats:
                     raise PrtError("subsurface needs the frame's transfer and ray hits (bake.transfer: true)")
                 core["subsurface"] = frame_subsurface(pos[i], frames[i], ch.faces, ctx.rays, res.hits, res.transfer,
                                                       sss)
+            if p.get("peaks"):
+                core.update(record_frame({**p["peaks"], "seed": p["seed"]}, task.f0 + i, pos[i], frames[i][:, 2],
+                                         ch.faces, float(p["ray_offset_world"])))
             frame = TracedFrame(positions=pos[i], frames=frames[i], faces=ch.faces, rays=ctx.rays, result=res,
                                 arrays=core)
             arrays = dict(core)
@@ -312,6 +317,9 @@ def _create(path: Path, cfg: RunConfig, plan: BakePlan, attrs: dict[str, Any]) -
         per_frame["transfer"] = ((V, b.transfer_order**2), "float32")
     if b.subsurface is not None:
         per_frame["subsurface"] = ((V, b.transfer_order**2), "float32")
+    if b.peaks is not None:
+        per_frame["peak_directions"] = ((b.peaks.directions, 3), "float32")
+        per_frame["peak_visibility"] = ((V, b.peaks.directions), "float32")
     for _, spec in bake_extras(attrs["bake"], V, core=CORE_RESULTS):
         per_frame.update(spec)
     create_store(path, _static_arrays(cfg, plan), per_frame, plan.n_frames, b.frames_per_task, attrs)

@@ -65,7 +65,8 @@ FORMAT_VERSION = 2
 READABLE_FORMATS = (1, 2)
 
 #: per-frame float arrays written by the bake tasks, with their per-frame shapes
-PER_FRAME_RESULTS = ("positions", "normals", "frames", "visibility", "transfer", "transfer_matrix", "subsurface")
+PER_FRAME_RESULTS = ("positions", "normals", "frames", "visibility", "transfer", "transfer_matrix", "subsurface",
+                     "peak_directions", "peak_visibility")
 
 #: attrs["bake"] keys that change the baked numbers (compared on resume): the BakeConfig fields marked ``result``
 RESULT_KEYS = result_keys()
@@ -793,6 +794,40 @@ class BakedDataset:
 
         cfg = self.run_config()
         return clip_by_name(character, name, None if cfg is None else cfg.character, fps)
+
+    def frame_poses(self, clips: list[str], frame_index: np.ndarray,
+                    character: Character) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """``local (F, J, 4, 4)``, ``skin (F, J, 4, 4)`` float64 and the source clip of the dataset frames
+        ``(clips[f], frame_index[f])`` (dataset clip names, indices into their source clips): each name resolved by
+        the one rule (:meth:`clip_by_name`, so a held-out frame range of a training clip is that clip's frames) and
+        posed as the bake posed it. A frame outside its clip's entry is a one-line error."""
+        from prt_torch.shapes import check_shape
+
+        fps = recorded_fps(self.attrs)
+        check_shape(frame_index, "F", name="frame_poses: frame_index", dims={"F": len(clips)})
+        local = np.empty((len(clips), character.num_joints, 4, 4), np.float64)
+        skin = np.empty_like(local)
+        sources = [""] * len(clips)
+        for name in dict.fromkeys(clips):
+            plan = self.clip_by_name(name, character, fps)
+            sel = np.flatnonzero([c == name for c in clips])
+            at = np.minimum(np.searchsorted(plan.frame_index, frame_index[sel]), len(plan.frame_index) - 1)
+            if not np.all(plan.frame_index[at] == frame_index[sel]):
+                raise PrtError(f"{self.path}: frames of clip {name!r} are not frames of its entry (clip "
+                               f"{plan.source!r}, {len(plan.frame_index)} frames): the recorded config does not "
+                               f"describe this dataset")
+            poses = character.pose(plan.clip)
+            local[sel], skin[sel] = poses.local[at], poses.skin[at]
+            for i in sel:
+                sources[i] = plan.source
+        return local, skin, sources
+
+    def row_poses(self, rows: np.ndarray, character: Character) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """:meth:`frame_poses` of the dataset rows ``rows (F,)``."""
+        rows = np.asarray(rows, dtype=np.int64)
+        names = self.clip_names
+        return self.frame_poses([names[i] for i in self.clip_id[rows]], self.frame_index[rows].astype(np.int64),
+                                character)
 
     def bake_config(self) -> BakeConfig:
         """The bake settings the store was baked with, validated (:func:`recorded_bake_config`)."""

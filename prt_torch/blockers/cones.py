@@ -72,6 +72,17 @@ def cap_solid_angle(half_angle: Array) -> Array:
     return 4 * math.pi * xp.sin(half_angle / 2) ** 2
 
 
+#: the floor of every square root's argument: ``sqrt`` of an exact 0 has an infinite derivative, which times the 0
+#: of a clamp or of the branch ``where`` does not take is NaN in the learned blockers' gradients
+#: (:mod:`prt_torch.models.peak_blockers`); ``sqrt(1e-30) = 1e-15`` moves no result by more than that
+TINY = 1e-30
+
+
+def _sqrt(xp: ModuleType, x: Array) -> Array:
+    """``sqrt(max(x, TINY))``: finite values and finite derivatives everywhere (:data:`TINY`)."""
+    return xp.sqrt(xp.clip(x, TINY, None))
+
+
 def cap_intersection(a: Array, b: Array, gamma: Array) -> Array:
     """Solid angle of the intersection of two spherical caps (module doc for the formula).
 
@@ -88,11 +99,12 @@ def cap_intersection(a: Array, b: Array, gamma: Array) -> Array:
     s = (a + b + g) / 2
     sa, sb, sg = xp.clip(s - a, 0.0, None), xp.clip(s - b, 0.0, None), xp.clip(s - g, 0.0, None)
     sin_s = xp.sin(s)
-    phi_a = 2 * xp.arctan2(xp.sqrt(xp.sin(sa) * xp.sin(sg)), xp.sqrt(sin_s * xp.sin(sb)))
-    phi_b = 2 * xp.arctan2(xp.sqrt(xp.sin(sb) * xp.sin(sg)), xp.sqrt(sin_s * xp.sin(sa)))
-    excess = 4 * xp.arctan(xp.sqrt(xp.tan(s / 2) * xp.tan(sa / 2) * xp.tan(sb / 2) * xp.tan(sg / 2)))
+    phi_a = 2 * xp.arctan2(_sqrt(xp, xp.sin(sa) * xp.sin(sg)), _sqrt(xp, sin_s * xp.sin(sb)))
+    phi_b = 2 * xp.arctan2(_sqrt(xp, xp.sin(sb) * xp.sin(sg)), _sqrt(xp, sin_s * xp.sin(sa)))
+    excess = 4 * xp.arctan(_sqrt(xp, xp.tan(s / 2) * xp.tan(sa / 2) * xp.tan(sb / 2) * xp.tan(sg / 2)))
     lens = 4 * phi_a * xp.sin(a / 2) ** 2 + 4 * phi_b * xp.sin(b / 2) ** 2 - 2 * excess
     inside = gamma <= lo  # the smaller cap, also for identical caps (a = b, gamma = 0, where the lens is 0 / 0)
+    lens = xp.where(gamma >= a + b, xp.zeros_like(lens), lens)  # apart: exactly 0 (not the TINY floor's 1e-15)
     return xp.clip(xp.where(inside, cap_solid_angle(xp.minimum(a, b)), lens), 0.0, None)
 
 
@@ -101,7 +113,7 @@ def _cross_norm(u: Array, w: Array) -> Array:
     cx = u[..., 1] * w[..., 2] - u[..., 2] * w[..., 1]
     cy = u[..., 2] * w[..., 0] - u[..., 0] * w[..., 2]
     cz = u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0]
-    return (cx * cx + cy * cy + cz * cz) ** 0.5
+    return _sqrt(_xp(cx), cx * cx + cy * cy + cz * cz)
 
 
 def horizon_fraction(normals: Array, directions: Array, angular_radii: Array) -> Array:
@@ -130,7 +142,7 @@ def _nonzero(mask: Any) -> tuple[Any, ...]:
 def _sum_at(index: Any, weights: Any, size: int) -> Any:
     """``out[i] = sum of weights[index == i]``, ``(size,)``."""
     if is_torch(weights):
-        return weights.new_zeros(size).index_add_(0, index, weights)
+        return weights.new_zeros(size).scatter_add(0, index, weights)  # ONNX: ScatterElements, reduction add
     return np.bincount(index, weights, minlength=size).astype(weights.dtype, copy=False)
 
 
@@ -160,6 +172,28 @@ def _overlaps(positions: np.ndarray, centers: np.ndarray, radii: np.ndarray, dir
     return out[:n]
 
 
+def _tracing(xp: ModuleType) -> bool:
+    """Whether torch is tracing (an ONNX export): shapes are then traced values, not checked."""
+    return xp is not np and bool(xp.jit.is_tracing() or xp.onnx.is_in_onnx_export())
+
+
+def _check_inputs(positions: Array, normals: Array, centers: Array, radii: Array, directions: Array,
+                  angular_radii: Array) -> None:
+    """:func:`sphere_peak_visibility`'s argument checks (one-line :class:`PrtError`)."""
+    for x, name in ((positions, "receiver positions"), (normals, "receiver normals"), (centers, "sphere centres"),
+                    (directions, "peak directions")):
+        check_float_array(x, name)
+    dims = check_shape(positions, "... V 3", name="receiver positions")
+    check_shape(normals, tuple(positions.shape), name="receiver normals")
+    check_shape(centers, (*positions.shape[:-2], "S", 3), name="sphere centres", dims=dims)
+    check_shape(radii, "S", name="sphere radii", dims=dims)
+    check_shape(directions, "P 3", name="peak directions", dims=dims)
+    check_shape(angular_radii, "P", name="peak angular radii", dims=dims)
+    ar = check_float_array(angular_radii, "peak angular radii")
+    check(bool((ar > 0).all() and (ar <= math.pi / 2).all()), "peak angular radii must be in (0, pi/2] radians")
+    check(bool((check_float_array(radii, "sphere radii") > 0).all()), "sphere radii must be > 0")
+
+
 def sphere_peak_visibility(positions: Array, normals: Array, centers: Array, radii: Array, directions: Array,
                            angular_radii: Array) -> Array:
     """Visible fraction of each peak's disc at each receiver, through sphere blockers (module doc).
@@ -177,25 +211,17 @@ def sphere_peak_visibility(positions: Array, normals: Array, centers: Array, rad
         ``(..., V, P)`` in ``[0, 1]``, the dtype and array type of ``positions`` (numpy or torch).
     """
     xp = _xp(positions)
-    for x, name in ((positions, "receiver positions"), (normals, "receiver normals"), (centers, "sphere centres"),
-                    (directions, "peak directions")):
-        check_float_array(x, name)
-    dims = check_shape(positions, "... V 3", name="receiver positions")
-    check_shape(normals, positions.shape, name="receiver normals")
-    check_shape(centers, (*positions.shape[:-2], "S", 3), name="sphere centres", dims=dims)
-    check_shape(radii, "S", name="sphere radii", dims=dims)
-    check_shape(directions, "P 3", name="peak directions", dims=dims)
-    check_shape(angular_radii, "P", name="peak angular radii", dims=dims)
-    ar = check_float_array(angular_radii, "peak angular radii")
-    check(bool((ar > 0).all() and (ar <= math.pi / 2).all()), "peak angular radii must be in (0, pi/2] radians")
-    check(bool((check_float_array(radii, "sphere radii") > 0).all()), "sphere radii must be > 0")
-    lead, (V, S, P) = positions.shape[:-2], (dims["V"], dims["S"], dims["P"])
-    B = int(np.prod(lead, dtype=np.int64))
+    if not _tracing(xp):  # checked on every call; an ONNX export traces the computation only (dynamic B, V, P)
+        _check_inputs(positions, normals, centers, radii, directions, angular_radii)
+    V, S, P = positions.shape[-2], centers.shape[-2], directions.shape[0]
+    lead = positions.shape[:-2]
+    pos3, cen3 = positions.reshape(-1, V, 3), centers.reshape(-1, S, 3)
+    B = pos3.shape[0]
     # the test gamma < a + b on every (receiver, sphere, peak), in (..., P, V, S) order, without trigonometry:
     # (c - p) . l + R sin a > cos a |c - p| cos b; a sphere containing the receiver gets |c - p| cos b = inf
     if xp is np:  # one compiled pass
-        flat = _overlaps(np.ascontiguousarray(positions.reshape(B, V, 3)), np.ascontiguousarray(
-            centers.reshape(B, S, 3)), radii, directions, np.cos(angular_radii), np.sin(angular_radii))
+        flat = _overlaps(np.ascontiguousarray(pos3), np.ascontiguousarray(cen3), radii, directions,
+                         np.cos(angular_radii), np.sin(angular_radii))
     else:  # torch: whole arrays (an exportable graph)
         d2 = ((positions * positions).sum(-1)[..., :, None] + (centers * centers).sum(-1)[..., None, :]
               - 2 * positions @ xp.swapaxes(centers, -1, -2))  # (..., V, S)
@@ -209,14 +235,14 @@ def sphere_peak_visibility(positions: Array, normals: Array, centers: Array, rad
     # the overlapping triples' geometry, gathered exactly
     group = flat // S  # flat (..., P, V) index
     s, v, p, b = flat % S, group % V, (group // V) % P, group // (V * P)
-    off = centers.reshape(B * S, 3)[b * S + s] - positions.reshape(B * V, 3)[b * V + v]  # (N, 3)
+    off = cen3.reshape(-1, 3)[b * S + s] - pos3.reshape(-1, 3)[b * V + v]  # (N, 3)
     ln, rs = directions[p], radii[s]
     gamma = xp.arctan2(_cross_norm(ln, off), (ln * off).sum(-1))
-    beta = xp.arctan2(rs, xp.sqrt(xp.clip((off * off).sum(-1) - rs * rs, 0.0, None)))
+    beta = xp.arctan2(rs, _sqrt(xp, (off * off).sum(-1) - rs * rs))
     frac = cap_intersection(angular_radii[p], beta, gamma) / cap_solid_angle(angular_radii[p])
     # product over spheres: the sum of log(1 - occlusion) per (receiver, peak), a full occlusion counted apart
     full = frac >= 1
-    logs = xp.log(xp.where(full, xp.ones_like(frac), 1 - frac))
+    logs = xp.where(full, xp.zeros_like(frac), xp.log(xp.clip(1 - frac, TINY, None)))
     n_full = _sum_at(group, full * xp.ones_like(frac), B * P * V)
     vis = xp.exp(_sum_at(group, logs, B * P * V)) * (n_full == 0)
     vis = xp.swapaxes(vis.reshape(*lead, P, V), -1, -2)

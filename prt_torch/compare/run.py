@@ -28,7 +28,6 @@ from prt_torch.scoring.sampling import evenly_spaced
 from prt_torch.scoring.shading import ShippingShader
 from prt_torch.scoring.statistics import ImageStats, RadianceStats
 from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
-from prt_torch.shapes import check_shape
 
 TRUTH = "sh_truth"
 REFERENCE = "reference"
@@ -75,28 +74,9 @@ def heldout_frames(ctx: CompareRun, max_frames: int | None = None) -> FrameSet:
 
 
 def row_poses(ctx: CompareRun, clips: list[str], frame_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """``local (F, J, 4, 4)``, ``skin (F, J, 4, 4)`` float64 and the source clip of the dataset frames ``(clips[f],
-    frame_index[f])`` (dataset clip names, indices into their source clips): each name resolved by the one rule
-    (:meth:`~prt_torch.bake.store.BakedDataset.clip_by_name`, so a held-out frame range of a training clip is that
-    clip's frames) and posed as the bake posed it. A frame outside its clip's entry is a one-line error."""
-    ch, ds = ctx.character, ctx.dataset
-    fps = recorded_fps(ds.attrs)
-    check_shape(frame_index, "F", name="row_poses: frame_index", dims={"F": len(clips)})
-    local = np.empty((len(clips), ch.num_joints, 4, 4), np.float64)
-    skin = np.empty_like(local)
-    sources = [""] * len(clips)
-    for name in dict.fromkeys(clips):
-        plan = ds.clip_by_name(name, ch, fps)
-        sel = np.flatnonzero([c == name for c in clips])
-        at = np.minimum(np.searchsorted(plan.frame_index, frame_index[sel]), len(plan.frame_index) - 1)
-        check(bool(np.all(plan.frame_index[at] == frame_index[sel])),
-              f"{ds.path}: frames of clip {name!r} are not frames of its entry (clip {plan.source!r}, "
-              f"{len(plan.frame_index)} frames): the recorded config does not describe this dataset")
-        poses = ch.pose(plan.clip)
-        local[sel], skin[sel] = poses.local[at], poses.skin[at]
-        for i in sel:
-            sources[i] = plan.source
-    return local, skin, sources
+    """The poses of the dataset frames ``(clips[f], frame_index[f])``: :meth:`~prt_torch.bake.store.BakedDataset.
+    frame_poses` (the one clip-name rule, posed as the bake posed them)."""
+    return ctx.dataset.frame_poses(clips, frame_index, ctx.character)
 
 
 def clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = None) -> FrameSet:

@@ -212,7 +212,10 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     model_hash = file_sha256(mpath)
     request = ExportRequest(run=run, precision=precision, opset=opset, exporter=exporter, deform=deform,
                             deformable=deform is not None or dataset_is_deformable(run))
-    plans = [(s, s.plan(request)) for s in shippers()]  # the method parts (SHIPPERS), before anything is written
+    from prt_torch.export.peaks_graph import SHIPPER as PEAKS_SHIPPER
+
+    # the core's learned peak graph, then the method parts (SHIPPERS), all planned before anything is written
+    plans = [(s, s.plan(request)) for s in (PEAKS_SHIPPER, *shippers())]
     ship_files = tuple(f for _, plan in plans for f in plan.files)
     core_key = {"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
                 "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT,

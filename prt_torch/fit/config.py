@@ -114,6 +114,23 @@ class LocalConfig(BaseModel):
         return self
 
 
+class PeakFitConfig(BaseModel):
+    """``train.peaks``: fit the learned peak blockers to the bake's peak visibility (needs ``bake.peaks``;
+    :mod:`prt_torch.fit.peaks`, whose module doc explains each setting)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    steps: int = Field(default=300, ge=1, le=L.MAX_ITERATIONS)
+    frames_per_step: int = Field(default=8, ge=1, le=1024)
+    vertices_per_step: int = Field(default=4096, ge=16, le=L.MAX_VERTICES)
+    learning_rate: float = Field(default=0.02, gt=0, le=1.0)
+    widen_deg: float = Field(default=4.0, ge=0.05, le=30.0)
+    anneal: float = Field(default=0.6, gt=0, le=1.0)
+    eval_frames: int = Field(default=16, ge=1, le=L.MAX_FRAMES)
+    #: learned spheres (``None``: the run's ``bake.blockers``)
+    spheres: int | None = Field(default=None, ge=1, le=1024)
+
+
 class TrainConfig(BaseModel):
     """Reduction and regression settings.
 
@@ -162,6 +179,7 @@ class TrainConfig(BaseModel):
     transfer: TransferConfig | None = None  # learned diffuse transfer (seed 000), prt_torch.transfer.fit
     s001: S001Config | None = None  # seed 001 compressed transfer matrices, prt_torch.s001.fit
     local: LocalConfig | None = None  # local visibility models of a deformable run, prt_torch.local.fit
+    peaks: PeakFitConfig | None = None  # the learned peak blockers (issue 27; needs bake.peaks), prt_torch.fit.peaks
 
     @field_validator("kinds")
     @classmethod

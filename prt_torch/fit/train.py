@@ -82,10 +82,12 @@ def _metadata(info: BakedDataset, cfg: TrainConfig, red: Reduced, fits: dict[str
     }
 
 
-def unit_files(run: RunDir, kinds: list[str]) -> list[Path]:
-    """The files of the train unit besides ``model.json``: each kind's model, the default model, the metrics.
-    ``model.json`` records their sha256 (``files``) and is written after them: it commits the unit."""
-    return [*(run.model_path(k) for k in kinds), run.model_path(), run.metrics_json]
+def unit_files(run: RunDir, kinds: list[str], peaks: bool = False) -> list[Path]:
+    """The files of the train unit besides ``model.json``: each kind's model, the default model, the metrics (and
+    with ``train.peaks`` the learned peak blockers). ``model.json`` records their sha256 (``files``) and is
+    written after them: it commits the unit."""
+    return [*(run.model_path(k) for k in kinds), run.model_path(), run.metrics_json,
+            *((run.peak_blockers_path,) if peaks else ())]
 
 
 def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
@@ -98,7 +100,7 @@ def train_key(ds: BakedDataset, cfg: TrainConfig) -> str:
     for hook in fit_hooks():  # keys of runs trained before a method's section (train.transfer ...) existed stay valid
         if settings.get(hook.section) is None:
             settings.pop(hook.section, None)
-    for cap in ("output_max_components", "input_max_components"):  # likewise the size caps
+    for cap in ("output_max_components", "input_max_components", "peaks"):  # likewise the size caps, train.peaks
         if settings.get(cap) is None:
             settings.pop(cap, None)
     device = resolve_device(cfg.device)
@@ -136,11 +138,13 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
     for hook in hooks:  # before anything is fitted or written
         if hook.check is not None:
             hook.check(ds, cfg)
+    if cfg.peaks is not None:
+        check_peak_data(ds)
     extra = tuple(dict.fromkeys(a for h in hooks for a in h.extra))  # the per-frame arrays the hooks read
     train = ds.split("train", extra=extra)
     check(train.n_frames >= 2 * cfg.folds, f"{ds.path}: only {train.n_frames} training frames for {cfg.folds} folds")
     # the stage's files; model.json (written last, with their sha256) commits them (see unit_files)
-    run.begin("train", (*unit_files(run, cfg.kinds), run.model_json))
+    run.begin("train", (*unit_files(run, cfg.kinds, cfg.peaks is not None), run.model_json))
     skinning = load_skinning(ds) if cfg.input_selection == "joints" else None
     train_only = cv_train_only(ds, train, cfg)
     red = reduce_training(train, ds.cluster, cfg, skinning, train_only)
@@ -171,13 +175,48 @@ def _train(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> di
         part = hook.run(ds, run, cfg, splits, progress)
         if part is not None:
             metrics[hook.metrics_key] = part
+    if cfg.peaks is not None:
+        metrics["peaks"] = fit_peaks(ds, run, cfg, progress)
+    else:
+        run.peak_blockers_path.unlink(missing_ok=True)  # not this training's: a previous one's
     atomic_write_json(run.metrics_json, metrics)
-    meta["files"] = run.unit_hashes(unit_files(run, list(fits)))
+    meta["files"] = run.unit_hashes(unit_files(run, list(fits), cfg.peaks is not None))
     from prt_torch.kernels import kernel_state
 
     meta["blas_kernels"] = kernel_state()  # "pinned": the same fit on every x86-64 AVX2 machine (DESIGN.md)
     atomic_write_json(run.model_json, meta)  # the commit record: written last
     run.mark_done("train", train_key(ds, cfg))
+    return metrics
+
+
+def check_peak_data(ds: BakedDataset) -> None:
+    """``train.peaks`` needs a dataset baked with ``bake.peaks`` (one-line error otherwise)."""
+    from prt_torch.fit.peaks import has_peak_data
+
+    check(has_peak_data(ds), f"{ds.path}: train.peaks needs peak visibility in the dataset: bake with bake.peaks set")
+
+
+def fit_peaks(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) -> dict[str, Any]:
+    """Fit and write the learned peak blockers (``train.peaks``, :mod:`prt_torch.fit.peaks`); their metrics."""
+    from prt_torch.fit.peaks import PeakFitSettings, fit_peak_blockers
+
+    pc = cfg.peaks
+    assert pc is not None
+    settings = PeakFitSettings(steps=pc.steps, frames_per_step=pc.frames_per_step,
+                               vertices_per_step=pc.vertices_per_step, learning_rate=pc.learning_rate,
+                               widen_deg=pc.widen_deg, anneal=pc.anneal, eval_frames=pc.eval_frames, seed=cfg.seed)
+    done = ds.done
+    rows = {s: np.intersect1d(ds.split_rows(s), np.flatnonzero(done)) if s in ds.splits else np.zeros(0, np.int64)
+            for s in ("train", "heldout")}
+    n = pc.spheres if pc.spheres is not None else ds.bake_config().blockers
+    character = ds.character()
+    log_progress(progress, f"peak blockers: fitting {n} spheres to the exact peak visibility of "
+                           f"{len(rows['train'])} frames ({settings.steps} steps)")
+    model, metrics = fit_peak_blockers(ds, character, rows["train"], rows["heldout"], n, settings)
+    model.sphere_set().save(run.peak_blockers_path)
+    log_progress(progress, f"peak blockers: wrong side of 0.5 {metrics['initial']['wrong_side']:.2%} (rest "
+                           f"spheres) -> {metrics['learned']['wrong_side']:.2%} (learned) on "
+                           f"{metrics['eval_frames']} {metrics['eval_split']} frames, {metrics['fit_s']:.0f} s")
     return metrics
 
 

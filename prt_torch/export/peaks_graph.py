@@ -1,0 +1,99 @@
+"""``peaks.onnx``: the learned peak visibility as an ONNX graph (issue 27; what onnxruntime-web runs in the page).
+
+The graph is :class:`prt_torch.models.peak_blockers.PeakBlockers` with the run's fitted spheres
+(``peak_blockers.npz``) as constants: inputs ``positions (B, V, 3)``, ``normals (B, V, 3)`` (posed, world),
+``skin (B, J, 4, 4)`` (skinning matrices ``world @ inverse_bind``), ``directions (P, 3)`` (unit, towards the
+lights) and ``angular_radii (P,)`` (radians); output ``peak_visibility (B, V, P)`` in ``[0, 1]``. ``B``, ``V`` and
+``P`` are dynamic (the overlapping (receiver, sphere, peak) triples are gathered with ``NonZero``).
+
+``prt export`` writes it for a run trained with ``train.peaks`` (:data:`SHIPPER`, the export's core shipper) and
+checks it against the torch module on held-out frames (onnxruntime vs torch).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from prt_torch.errors import check
+from prt_torch.export.shippers import ExportRequest, ShipInputs, Shipment, Shipper
+from prt_torch.rundir import file_sha256
+
+PEAK_INPUTS = ("positions", "normals", "skin", "directions", "angular_radii")
+PEAK_OUTPUTS = ("peak_visibility",)
+#: bump when the graph's computation changes (the export stage key)
+PEAKS_GRAPH_VERSION = 1
+#: ORT vs torch relative tolerance: float32 trigonometry of the same formula, summed over a few spheres in logs
+PARITY_RTOL = 1e-4
+
+
+def example_peaks(n: int = 2, radius_deg: float = 0.265, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(directions (n, 3), angular_radii (n,))`` float32: ``n`` seeded sky directions, ``radius_deg`` discs."""
+    from prt_torch.bake.peaks import record_directions
+
+    return record_directions(0, n, 10.0, seed), np.full(n, math.radians(radius_deg), np.float32)
+
+
+def export_peak_graph(spheres: Any, path: Any, inputs: dict[str, np.ndarray], metadata: dict[str, Any] | None = None,
+                      opset: int = 17, exporter: str = "torchscript") -> Any:
+    """Write the graph of ``spheres`` (a :class:`~prt_torch.blockers.spheres.SphereSet`) to ``path`` (atomic)
+    traced on ``inputs`` (:data:`PEAK_INPUTS`); returns the torch module."""
+    import torch
+
+    from prt_torch.export.onnx_file import export_onnx
+    from prt_torch.models.peak_blockers import PeakBlockers
+
+    module = PeakBlockers(spheres).eval()
+    args = [torch.from_numpy(np.ascontiguousarray(inputs[k], dtype=np.float32)) for k in PEAK_INPUTS]
+    dyn = {"positions": {0: "B", 1: "V"}, "normals": {0: "B", 1: "V"}, "skin": {0: "B"}, "directions": {0: "P"},
+           "angular_radii": {0: "P"}, "peak_visibility": {0: "B", 1: "V", 2: "P"}}
+    meta = {**(metadata or {}), "prt.graph": "peaks", "prt.n_spheres": str(len(spheres.radius))}
+    export_onnx(module, args, path, PEAK_INPUTS, PEAK_OUTPUTS, dyn, metadata=meta, opset=opset, exporter=exporter)
+    return module
+
+
+def plan_peaks(request: ExportRequest) -> Shipment:
+    """A run with learned peak blockers ships ``peaks.onnx``; the key records the blockers' sha256."""
+    p = request.run.peak_blockers_path
+    if not p.is_file():
+        return Shipment()
+    return Shipment(files=(request.run.peak_graph_path,),
+                    key={"peak_blockers_sha256": file_sha256(p), "peaks_graph": PEAKS_GRAPH_VERSION})
+
+
+def ship_peaks(shipment: Shipment, inputs: ShipInputs) -> dict[str, Any] | None:
+    """Export ``peaks.onnx`` and check it (ORT vs torch) on the held-out frames: ``export.json``'s ``peaks``."""
+    if not shipment.files:
+        return None
+    import torch
+
+    from prt_torch.blockers.spheres import SphereSet
+    from prt_torch.export.onnx_file import initializer_bytes
+    from prt_torch.export.parity import check_parity
+
+    run = inputs.run
+    spheres = SphereSet.load(run.peak_blockers_path)
+    held = inputs.held
+    from prt_torch.bake.deformable import is_deformable
+
+    check(not is_deformable(run.dataset().attrs), f"{run.path}: learned peak blockers need a skinned character")
+    _, skin, _ = run.dataset().row_poses(held["rows"], inputs.character)
+    dirs, radii = example_peaks()
+    ex = {"positions": held["positions"].astype(np.float32),
+          "normals": np.ascontiguousarray(held["frames"][..., 2, :], dtype=np.float32),
+          "skin": skin.astype(np.float32), "directions": dirs, "angular_radii": radii}
+    path = run.peak_graph_path
+    module = export_peak_graph(spheres, path, ex, inputs.base_meta, inputs.opset, inputs.exporter)
+    with torch.no_grad():
+        par = check_parity(module, path, ex, rtol=PARITY_RTOL)
+    inputs.log(f"  {path.name}: parity rel. error {par.rel_error:.2e} on {len(ex['positions'])} held-out poses")
+    return {"graph_file": run.relative(path), "blockers_file": run.relative(run.peak_blockers_path),
+            "n_spheres": int(len(spheres.radius)), "inputs": list(PEAK_INPUTS), "outputs": list(PEAK_OUTPUTS),
+            "parity": {**par.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes":
+                       path.stat().st_size}}
+
+
+#: the export's core shipper of the learned peak graph (``prt_torch.export.run`` ships it before the methods')
+SHIPPER = Shipper(name="peaks", plan=plan_peaks, ship=ship_peaks)
