@@ -92,7 +92,7 @@ def reference_light(env: str | Path | None) -> ReferenceLight:
 
 def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndarray, eye: np.ndarray,
                        light: ReferenceLight, brdfs: Mapping[str, Any], n_rays: int, seed: int, offset: float,
-                       max_rays: int = 1 << 19, disk_rays: int = 64) -> dict[str, np.ndarray]:
+                       max_rays: int = 1 << 19, disk_rays: int = 64, scene: Any = None) -> dict[str, np.ndarray]:
     """One Monte-Carlo estimate of the outgoing radiance toward ``eye`` of every vertex of one posed frame.
 
     Args:
@@ -104,6 +104,8 @@ def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndar
         offset: ray origin offset along the normal (world units).
         max_rays: rays per block (memory bound).
         disk_rays: rays per vertex and disk light (uniform in the disk's cap, randomised per seed).
+        scene: trace against this :class:`~prt_torch.bake.embree.RayScene` (e.g. the characters above a floor whose
+            vertices are the receivers) instead of the mesh ``(positions, faces)``.
 
     Returns:
         ``{name: (V, 3) float64}``; the radiance of a vertex seen from below its horizon (``wo.z <= 0``) is 0
@@ -120,7 +122,8 @@ def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndar
     check(n_rays >= 1, f"reference: need >= 1 ray per vertex, got {n_rays}")
     if not (np.isfinite(positions).all() and np.isfinite(frames).all()):
         raise PrtError("reference: positions or frames contain NaN or Inf")
-    scene = RayScene(positions.astype(np.float32), np.asarray(faces))
+    if scene is None:
+        scene = RayScene(positions.astype(np.float32), np.asarray(faces))
     local = hemisphere_directions(int(n_rays), seed=int(seed))  # (R, 3)
     phi = vertex_angles(v, int(seed) + 7919)
     view = np.asarray(eye, dtype=np.float64) - positions
