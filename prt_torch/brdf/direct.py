@@ -65,6 +65,7 @@ def peak_radiance(frames: np.ndarray, view: np.ndarray, directions: np.ndarray, 
     flat = out.reshape(-1, 3)
     for p in range(dims["P"]):  # P <= 4 peaks: each one whole-array pass over every vertex
         wi = np.einsum("...ij,j->...i", f, d[p]).reshape(-1, 3)
+        wi /= np.maximum(np.linalg.norm(wi, axis=-1, keepdims=True), 1e-12)  # float32 frames: unit to ~1e-6 only
         lit = vis[:, p] > 0
         if not lit.any():
             continue

@@ -49,6 +49,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timings", default=None, help="frame timings JSON (default: next to --out, or "
                                                         "a timings file in RUN)")
     parser.add_argument("--light-angle", type=float, default=0.0, help="rotate the lighting about z (degrees)")
+    parser.add_argument("--peaks", default="auto",
+                        help="peak lights split off the lighting, each with its own soft shadow: 'auto' (the sky's "
+                             "sun, or up to 2 of a map's), 0 (none: the whole lighting through SH, as before) or K in "
+                             "1..4")
+    parser.add_argument("--peak-visibility", default=None,
+                        help="the peaks' shadows: exact (Embree rays to the disc), spheres (the run's blocker "
+                             "spheres) or learned (the run's learned peak blockers); default learned when the run "
+                             "has them, else spheres, else no shadow")
     table = renderers()  # onnx and the method packages' (prt_torch.player.renderers.RENDERERS)
     parser.add_argument("--renderer", default="onnx", choices=[n for r in table for n in r.names],
                         help="; ".join(r.help for r in table))
@@ -79,6 +87,12 @@ def run(args: argparse.Namespace) -> int:
         raise PrtError(f"--light-angle must be a finite number of degrees, got {args.light_angle}")
     if args.clip is not None and args.motion is not None:
         raise PrtError("give --clip NAME or --motion FILE, not both")
+    from prt_torch.player.peaks import PEAK_KINDS, check_peaks_arg
+
+    args.peaks = check_peaks_arg(args.peaks)
+    if args.peak_visibility is not None and args.peak_visibility not in PEAK_KINDS:
+        raise PrtError(f"--peak-visibility: unknown kind {args.peak_visibility!r}: expected one of "
+                       f"{', '.join(PEAK_KINDS)}")
     if args.clip is None and args.motion is None and getattr(args, "scene", None) is None \
             and getattr(args, "sequence", None) is None:
         raise PrtError("give exactly one of --clip NAME or --motion FILE")  # a --scene file may name its clips
@@ -232,7 +246,8 @@ def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
     if clip is not None and clip not in (character := run.character()).clips:
         clip = _clip_of_run(run, character, clip)  # a split's clip (e.g. a held-out frame range of a clip)
     player = ScenePlayer(args.run, scene=scene, ground=args.ground, clip=clip, fps=args.fps, env=args.env,
-                         brdf=args.brdf, threads=args.threads, window_size=(h, w))
+                         brdf=args.brdf, threads=args.threads, window_size=(h, w), peaks=args.peaks,
+                         peak_kind=args.peak_visibility)
     try:
         if args.light_angle:
             import numpy as np

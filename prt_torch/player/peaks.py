@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 
 from prt_torch.errors import PrtError, check
@@ -145,10 +146,19 @@ class PeakVisibility:
     :data:`PEAK_KINDS`; :meth:`bytes` its run-time data beyond the character."""
 
     kind: str = ""
+    #: whether a vertex's result depends on its own position and normal only (any vertex order gives the same rows)
+    per_vertex: bool = False
 
     def __call__(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None, directions: np.ndarray,
                  angular_radii: np.ndarray) -> np.ndarray:
         raise NotImplementedError
+
+    def vertex_last(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None,
+                    directions: np.ndarray, angular_radii: np.ndarray) -> np.ndarray:
+        """The same ``(B, V, P)`` from the player's vertex-last ``positions, normals (B, 3, V)``
+        (:class:`~prt_torch.player.posing.PoseBatch` rows)."""
+        pos, nrm = (np.ascontiguousarray(np.swapaxes(x, 1, 2)) for x in (positions, normals))
+        return self(pos, nrm, skin, directions, angular_radii)
 
     def bytes(self) -> int:
         return 0
@@ -194,6 +204,7 @@ class SpherePeaks(PeakVisibility):
     cone-sphere kernel (numpy, one compiled pass)."""
 
     kind = "spheres"
+    per_vertex = True
 
     def __init__(self, spheres: Any) -> None:
         self.spheres = spheres
@@ -210,6 +221,15 @@ class SpherePeaks(PeakVisibility):
                                       self.spheres.radius.astype(np.float32),
                                       np.ascontiguousarray(directions, dtype=np.float32),
                                       np.asarray(angular_radii, dtype=np.float32)).astype(np.float32, copy=False)
+
+    def vertex_last(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None,
+                    directions: np.ndarray, angular_radii: np.ndarray) -> np.ndarray:
+        """The player's path: :func:`sphere_visibility_soa` (the same kernel fused per vertex, vertex-last input)."""
+        from prt_torch.blockers.spheres import pose_spheres
+
+        check(skin is not None, f"{self.kind} peak visibility needs the skinning matrices (a skinned character)")
+        return sphere_visibility_soa(positions, normals, pose_spheres(self.spheres, skin), self.spheres.radius,
+                                     directions, angular_radii)
 
     def bytes(self) -> int:
         return int(self.spheres.center.nbytes + self.spheres.radius.nbytes + self.spheres.bone.nbytes)
@@ -246,6 +266,204 @@ def peak_visibility(kind: str, run: Any, character: Any, offset: float | None = 
         return SpherePeaks(spheres)
     p = learned_blockers_path(run)
     if p is None:
-        raise PrtError(f"{run.path}: no learned peak blockers (peak_blockers.npz): bake with `bake.peaks` and run "
-                       f"`prt train`")
+        raise PrtError(f"{run.path}: no learned peak blockers ({run.peak_blockers_path.name}): bake with "
+                       f"`bake.peaks` and run `prt train`")
     return LearnedPeaks(SphereSet.load(p))
+
+
+# -- the player's compiled peak path (vertex-last arrays, one pass per frame) -------------------------------------
+
+
+_TINY = 1e-30  # prt_torch.blockers.cones.TINY (a literal: the compiled kernels read it as a constant)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cap_lens(a: float, b: float, gamma: float) -> float:  # pragma: no cover (compiled)
+    """Scalar :func:`prt_torch.blockers.cones.cap_intersection` (the same half-angle and L'Huilier formulas)."""
+    lo = abs(a - b)
+    if gamma >= a + b:
+        return 0.0
+    if gamma <= lo:
+        m = min(a, b)
+        return 4.0 * math.pi * math.sin(m / 2) ** 2
+    s = (a + b + gamma) / 2
+    sa, sb, sg = max(s - a, 0.0), max(s - b, 0.0), max(s - gamma, 0.0)
+    sin_s = math.sin(s)
+    phi_a = 2.0 * math.atan2(math.sqrt(max(math.sin(sa) * math.sin(sg), _TINY)),
+                             math.sqrt(max(sin_s * math.sin(sb), _TINY)))
+    phi_b = 2.0 * math.atan2(math.sqrt(max(math.sin(sb) * math.sin(sg), _TINY)),
+                             math.sqrt(max(sin_s * math.sin(sa), _TINY)))
+    t = math.tan(s / 2) * math.tan(sa / 2) * math.tan(sb / 2) * math.tan(sg / 2)
+    excess = 4.0 * math.atan(math.sqrt(max(t, _TINY)))
+    lens = 4.0 * phi_a * math.sin(a / 2) ** 2 + 4.0 * phi_b * math.sin(b / 2) ** 2 - 2.0 * excess
+    return max(lens, 0.0)
+
+
+def _sphere_visibility_soa_py(positions: np.ndarray, normals: np.ndarray, centers: np.ndarray, radii: np.ndarray,
+                           directions: np.ndarray, angular_radii: np.ndarray,
+                           out: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """:func:`sphere_visibility_soa`'s kernel: per (character, vertex) one pass over peaks and spheres."""
+    n_b, _, n_v = positions.shape
+    n_s, n_p = centers.shape[1], directions.shape[0]
+    for bv in numba.prange(n_b * n_v):
+        b, v = bv // n_v, bv % n_v
+        px, py, pz = positions[b, 0, v], positions[b, 1, v], positions[b, 2, v]
+        nx, ny, nz = normals[b, 0, v], normals[b, 1, v], normals[b, 2, v]
+        for p in range(n_p):
+            lx, ly, lz = directions[p, 0], directions[p, 1], directions[p, 2]
+            a = angular_radii[p]
+            sin_a, cos_a = math.sin(a), math.cos(a)
+            cap_a = 4.0 * math.pi * math.sin(a / 2) ** 2
+            cos_g = nx * lx + ny * ly + nz * lz
+            if cos_g >= sin_a:  # the share of the disc above the horizon (cones.horizon_fraction)
+                h = 1.0
+            elif cos_g <= -sin_a:
+                h = 0.0
+            else:
+                cx, cy, cz = ny * lz - nz * ly, nz * lx - nx * lz, nx * ly - ny * lx
+                g = math.atan2(math.sqrt(max(cx * cx + cy * cy + cz * cz, _TINY)), cos_g)
+                h = _cap_lens(a, math.pi / 2, g) / cap_a
+            if h <= 0.0:
+                out[b, v, p] = 0.0
+                continue
+            vis = h
+            for s in range(n_s):
+                r = radii[s]
+                ox = centers[b, s, 0] - px
+                oy = centers[b, s, 1] - py
+                oz = centers[b, s, 2] - pz
+                hh = ox * ox + oy * oy + oz * oz - r * r
+                x = ox * lx + oy * ly + oz * lz + r * sin_a
+                if not (hh > 0 and x > 0 and x * x > cos_a * cos_a * hh):  # cones._overlaps' test
+                    continue
+                cx, cy, cz = ly * oz - lz * oy, lz * ox - lx * oz, lx * oy - ly * ox
+                g = math.atan2(math.sqrt(max(cx * cx + cy * cy + cz * cz, _TINY)), lx * ox + ly * oy + lz * oz)
+                beta = math.atan2(r, math.sqrt(max(hh, _TINY)))
+                frac = _cap_lens(a, beta, g) / cap_a
+                if frac >= 1.0:
+                    vis = 0.0
+                    break
+                vis *= 1.0 - frac
+            out[b, v, p] = vis
+
+
+#: the kernel compiled twice: threads over vertices (numba's), and one thread (next to a model on a worker thread)
+_sphere_visibility_soa = numba.njit(cache=True, nogil=True, parallel=True)(_sphere_visibility_soa_py)
+_sphere_visibility_soa_serial = numba.njit(cache=True, nogil=True)(_sphere_visibility_soa_py)
+
+
+def sphere_visibility_soa(positions: np.ndarray, normals: np.ndarray, centers: np.ndarray, radii: np.ndarray,
+                          directions: np.ndarray, angular_radii: np.ndarray, threads: bool = True) -> np.ndarray:
+    """:func:`prt_torch.blockers.cones.sphere_peak_visibility` for the player's vertex-last arrays, one compiled pass.
+
+    The same cone-sphere occlusion (overlap test, cap intersection, independent occluders, the disc's horizon share)
+    fused per vertex in float64 arithmetic, parallel over vertices (numba threads), without the gathers and temporary
+    arrays of the general function.
+
+    Args:
+        positions, normals: ``(B, 3, V)`` float32 world receivers and their unit normals (vertex-last: a
+            :class:`~prt_torch.player.posing.PoseBatch`'s rows).
+        centers: ``(B, S, 3)`` posed sphere centres; radii: ``(S,)``.
+        directions: ``(P, 3)`` unit peak directions; angular_radii: ``(P,)`` half-angles in ``(0, pi/2]``.
+        threads: numba's threads over vertices (``False``: the calling thread only).
+
+    Returns:
+        ``(B, V, P)`` float32 visible fractions in ``[0, 1]``.
+    """
+    pos = np.ascontiguousarray(positions, dtype=np.float32)
+    check_shape(pos, "B 3 V", name="peak visibility: positions")
+    nrm = np.ascontiguousarray(normals, dtype=np.float32)
+    check_shape(nrm, tuple(pos.shape), name="peak visibility: normals")
+    cen = np.ascontiguousarray(centers, dtype=np.float32)
+    check_shape(cen, (pos.shape[0], "S", 3), name="peak visibility: sphere centres")
+    rad = np.ascontiguousarray(radii, dtype=np.float32)
+    check_shape(rad, (cen.shape[1],), name="peak visibility: sphere radii")
+    d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    ar = np.ascontiguousarray(angular_radii, dtype=np.float64).reshape(-1)
+    check(ar.shape == (d.shape[0],) and bool(((ar > 0) & (ar <= math.pi / 2)).all()),
+          "peak angular radii must be (P,) in (0, pi/2] radians")
+    out = np.empty((pos.shape[0], pos.shape[2], d.shape[0]), np.float32)
+    if out.size:
+        (_sphere_visibility_soa if threads else _sphere_visibility_soa_serial)(pos, nrm, cen, rad, d, ar, out)
+    return out
+
+
+def _peak_geometry_py(frames: np.ndarray, view: np.ndarray, directions: np.ndarray, visibility: np.ndarray,
+                   wi: np.ndarray, wo: np.ndarray, weight: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """Per (character, vertex, peak): the local light and view directions (unit, float64) and ``max(n.l, 0) V`` where
+    both are above the horizon and the disc is visible (else a weight of 0)."""
+    n_b, _, n_v = frames.shape
+    n_p = directions.shape[0]
+    for bv in numba.prange(n_b * n_v):
+        b, v = bv // n_v, bv % n_v
+        vx, vy, vz = view[b, 0, v], view[b, 1, v], view[b, 2, v]
+        f = frames[b, :, v]
+        ox = f[0] * vx + f[1] * vy + f[2] * vz
+        oy = f[3] * vx + f[4] * vy + f[5] * vz
+        oz = f[6] * vx + f[7] * vy + f[8] * vz
+        on = 1.0 / max(math.sqrt(ox * ox + oy * oy + oz * oz), 1e-12)
+        for p in range(n_p):
+            lx, ly, lz = directions[p, 0], directions[p, 1], directions[p, 2]
+            ix = f[0] * lx + f[1] * ly + f[2] * lz
+            iy = f[3] * lx + f[4] * ly + f[5] * lz
+            iz = f[6] * lx + f[7] * ly + f[8] * lz
+            inn = 1.0 / max(math.sqrt(ix * ix + iy * iy + iz * iz), 1e-12)
+            k = (b * n_v + v) * n_p + p
+            wi[k, 0], wi[k, 1], wi[k, 2] = ix * inn, iy * inn, iz * inn
+            wo[k, 0], wo[k, 1], wo[k, 2] = ox * on, oy * on, oz * on
+            vis = visibility[b, v, p]
+            weight[k] = iz * inn * vis if (iz > 0 and oz > 0 and vis > 0) else 0.0
+
+
+_peak_geometry = numba.njit(cache=True, nogil=True, parallel=True)(_peak_geometry_py)
+_peak_geometry_serial = numba.njit(cache=True, nogil=True)(_peak_geometry_py)
+
+
+def peak_shading_soa(frames: np.ndarray, view: np.ndarray, directions: np.ndarray, powers: np.ndarray,
+                     visibility: np.ndarray, brdf: Any, threads: bool = True) -> np.ndarray:
+    """:func:`prt_torch.brdf.direct.peak_radiance` for the player's vertex-last arrays: ``sum_p E_p f_r(l_p, v)
+    max(n . l_p, 0) V_p`` per vertex, the analytic ``brdf`` evaluated once on the (vertex, peak) pairs that receive
+    light (its shape and tint: :class:`prt_torch.brdf.analytic.BRDF`).
+
+    Args:
+        frames: ``(B, 9, V)`` vertex frames (entry ``3i + j`` is ``F[i, j]``, rows ``t, b, n``, world).
+        view: ``(B, 3, V)`` unit directions toward the eye.
+        directions: ``(P, 3)`` unit peak directions; powers: ``(P, 3)`` RGB peak powers ``E``.
+        visibility: ``(B, V, P)`` the discs' visible fractions.
+        brdf: the analytic BRDF the RPO was built from.
+        threads: numba's threads over vertices (``False``: the calling thread only).
+
+    Returns:
+        ``(B, V, 3)`` float32 radiance (0 where no light arrives or the vertex is seen from below its horizon).
+    """
+    f = np.ascontiguousarray(frames, dtype=np.float32)
+    check_shape(f, "B 9 V", name="peak shading: frames")
+    n_b, _, n_v = f.shape
+    vw = np.ascontiguousarray(view, dtype=np.float32)
+    check_shape(vw, (n_b, 3, n_v), name="peak shading: view directions")
+    d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    n_p = d.shape[0]
+    e = np.asarray(powers, dtype=np.float64).reshape(-1, 3)
+    check(e.shape == (n_p, 3), f"peak shading: powers must be ({n_p}, 3), got {np.shape(powers)}")
+    vis = np.ascontiguousarray(visibility, dtype=np.float32)
+    check_shape(vis, (n_b, n_v, n_p), name="peak shading: peak visibility")
+    out = np.zeros((n_b, n_v, 3), np.float32)
+    if n_p == 0 or n_v == 0:
+        return out
+    wi, wo = np.empty((n_b * n_v * n_p, 3)), np.empty((n_b * n_v * n_p, 3))
+    weight = np.empty(n_b * n_v * n_p)
+    (_peak_geometry if threads else _peak_geometry_serial)(f, vw, d, vis, wi, wo, weight)
+    lit = np.flatnonzero(weight)
+    if lit.size == 0:
+        return out
+    # the BRDF's shape on the lit pairs only: both directions are above the horizon there (BRDF.shape's rule), unit
+    s = brdf._shape(wi[lit], wo[lit]) * weight[lit]  # noqa: SLF001 - the checked shape() would re-test unit lengths
+    rgb = s[:, None] * (np.asarray(brdf.tint, dtype=np.float64)[None, :] * e[lit % n_p])
+    flat = out.reshape(-1, 3)
+    idx = lit // n_p
+    if n_p == 1:
+        flat[idx] = rgb
+    else:
+        for c in range(3):
+            flat[:, c] = np.bincount(idx, rgb[:, c], minlength=n_b * n_v)
+    return out

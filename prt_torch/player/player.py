@@ -9,7 +9,16 @@ Per frame (``Player.compute``)::
     [fused]  ORT fused.onnx(pose, frames, view dirs, lobes, RPO) -> radiance (B, V, 3)
     [split]  ORT visibility.onnx(pose) -> (B, V, C);  ORT shading.onnx(...) -> radiance
     [overlap] split, with visibility.onnx running on a worker thread while numpy poses (compute_overlapped)
+    [peaks]  + sum_p E_p f_r(l_p, v) max(n.l_p, 0) V_p: each peak light of the lighting (its sun) with its soft
+             shadow V_p (B, V, P) from the run's peak blockers (prt_torch.player.peaks), after the graph(s)
     B > 1 (a crowd): ONE batched call of every graph for all B characters (same or different clips)
+
+Peak lights (issue 27): the lighting is split into up to K peak lights and the residual (``peaks="auto"``: the sky's
+sun, or a map's detected peaks; ``0``: no split, the whole lighting on the SH path as before). The residual goes
+through the graphs (:attr:`Player.lighting` is the residual then); each peak adds its direct term with the analytic
+BRDF the selected RPO was built from and the visible fraction of its disc (:attr:`Player.peak_source`, a
+:class:`~prt_torch.player.peaks.PeakVisibility`: by default the run's learned peak blockers, else its blocker
+spheres, else none - the peaks then cast no shadow, with a warning).
 
 Vertex order: a format /3 export's fused graph takes and returns its vertex axes in the CLUSTER-SORTED order
 ``bundle.vertex_order`` (position i holds original vertex vertex_order[i]); the Poser poses in that order
@@ -35,10 +44,21 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import PrtError, check, warn
 from prt_torch.player.bundle import RPOTensors, RunBundle
-from prt_torch.player.lighting import Lighting, hemisphere_visibility, load_lighting
+from prt_torch.player.lighting import Lighting, hemisphere_visibility
 from prt_torch.player.material import SurfaceAlbedo, brdf_names, select_rpo, surface_albedo
+from prt_torch.player.peaks import (
+    AUTO,
+    PEAK_KINDS,
+    PeakLighting,
+    PeakVisibility,
+    learned_blockers_path,
+    load_peak_lighting,
+    peak_shading_soa,
+    peak_visibility,
+    sphere_visibility_soa,
+)
 from prt_torch.player.posing import PoseBatch, Poser
 from prt_torch.player.timing import FrameTimer
 from prt_torch.player.tonemap import ToneMap, auto_tonemap
@@ -132,6 +152,12 @@ class Player:
         crowd_chunk: characters per fused call for a crowd (``B`` > this: several calls of this many); ``None``:
             the whole crowd in ONE call. On a CPU the shading's per-vertex intermediates grow with ``B`` and leave
             the cache, so a few characters per call can beat one call (``prt bench play --crowd-chunk`` measures).
+        peaks: the peak lights split off the lighting (module doc): ``"auto"``, ``0`` (none: the whole lighting on
+            the SH path) or ``K`` in ``1..4``; ``None``: ``"auto"`` for this class's own shading path, ``0`` for a
+            subclass that shades or computes its own way (it keeps the whole lighting).
+        peak_kind: the peaks' visibility, one of :data:`~prt_torch.player.peaks.PEAK_KINDS`; ``None``: ``learned``
+            when the run has ``peak_blockers.npz``, else ``spheres`` when it has ``blockers.npz``, else none (the
+            peaks cast no shadow; a warning).
     """
 
     #: whether this player shades the character's own material (``material``, the default BRDF of a character
@@ -142,7 +168,9 @@ class Player:
                  brdf: str | None = None, graph: str = "fused", threads: int = 2,
                  window_size: tuple[int, int] = (480, 640), exposure: ToneMap | None = None, n_lobes: int = 3,
                  blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu",
-                 crowd_chunk: int | None = None) -> None:
+                 crowd_chunk: int | None = None, peaks: int | str | None = None, peak_kind: str | None = None) -> None:
+        check(peak_kind is None or peak_kind in PEAK_KINDS,
+              f"unknown peak visibility {peak_kind!r}: expected one of {', '.join(PEAK_KINDS)}")
         check(crowd_chunk is None or int(crowd_chunk) >= 1, f"crowd_chunk must be >= 1, got {crowd_chunk}")
         self.crowd_chunk = None if crowd_chunk is None else int(crowd_chunk)
         check(graph in GRAPH_MODES, f"unknown graph mode {graph!r}: expected one of {GRAPH_MODES}")
@@ -159,11 +187,21 @@ class Player:
         self.character = self.bundle.character
         self.order = self.bundle.order
         self.window_size = window_size
-        self.lighting: Lighting = load_lighting(env, self.order, n_lobes)
+        #: the lighting split into peak lights + residual (no peaks: the whole lighting)
+        self.peaks: PeakLighting = load_peak_lighting(env, self.order, self._default_peaks() if peaks is None
+                                                      else peaks, n_lobes)
+        #: the lighting of the SH path: the residual when there are peak lights
+        self.lighting: Lighting = self.peaks.lighting
         self.light_angle = 0.0
         self._lobe_dirs = self.lighting.dirs
+        self._peak_dirs = self.peaks.directions  # (P, 3) world, turned by rotate_light
+        self._peak_brdfs: dict[str, Any] = {}
         # brdf None: the character's own material (a glTF character), else the catalogue's first (player.material)
         self.rpo: RPOTensors = select_rpo(self.bundle, brdf, material=self.shades_material)
+        #: the peaks' visibility (``None``: no peaks, or no blockers - the peaks then cast no shadow)
+        self.peak_source: PeakVisibility | None = self._peak_source(peak_kind) if self.peaks.peaks else None
+        if self.peaks.peaks:
+            self.peak_brdf()  # a BRDF without an analytic form fails here, not on the first frame
         self.exposure = exposure
         self.unshadowed = hemisphere_visibility(self.order, self.bundle.below_horizon)
         ch = self.character
@@ -177,6 +215,54 @@ class Player:
         self._pool: Any = None  # worker thread of the "overlap" mode (created on first use)
         self._vis_overlap: OrtGraph | None = None
 
+    def _default_peaks(self) -> int | str:
+        """``peaks=None``: ``"auto"`` when this class shades with the player's own path (:meth:`compute`,
+        :meth:`shade`: the peak term is added there), ``0`` for a subclass with its own (it keeps the whole
+        lighting, the sun included)."""
+        cls = type(self)
+        return AUTO if cls.compute is Player.compute and cls.shade is Player.shade else 0
+
+    def _peak_source(self, kind: str | None) -> PeakVisibility | None:
+        """The :class:`~prt_torch.player.peaks.PeakVisibility` of ``kind`` (``None``: the run's best, see the class
+        doc), or ``None`` with a warning when the run has no blockers at all."""
+        run = self.bundle.run
+        if kind is None:
+            if learned_blockers_path(run) is not None:
+                kind = "learned"
+            elif run.blockers_path.is_file():
+                kind = "spheres"
+            else:
+                warn(f"{run.path}: no peak blockers ({run.peak_blockers_path.name}, {run.blockers_path.name}): the "
+                     f"peak light(s) cast no shadow (--peak-visibility exact traces the mesh)")
+                return None
+        offset = None
+        if kind == "exact":
+            from prt_torch.bake.embree import ray_offset
+
+            attrs = run.dataset().attrs if run.dataset_path.is_dir() else {}
+            bake = dict(attrs.get("bake") or {})
+            offset = float(bake["ray_offset_world"]) if "ray_offset_world" in bake else \
+                ray_offset(self.character.rest_vertices, float(bake.get("ray_offset", 1e-4)))
+        return peak_visibility(kind, run, self.character, offset=offset)
+
+    def peak_brdf(self, rpo: RPOTensors | None = None) -> Any:
+        """The analytic BRDF the RPO ``rpo`` (default the current one) was built from, which shades the peak lights:
+        :func:`prt_torch.brdf.rpo.builtin_brdf` for a catalogue name, :func:`prt_torch.rig.material.material_brdf`
+        of the character's material for ``material``; another RPO (a file of another BRDF) is a one-line error."""
+        name = (self.rpo if rpo is None else rpo).name
+        if name not in self._peak_brdfs:
+            from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
+            from prt_torch.rig.material import MATERIAL_BRDF, character_material, material_brdf
+
+            if name in CATALOGUE:
+                self._peak_brdfs[name] = builtin_brdf(name)
+            elif name == MATERIAL_BRDF:
+                self._peak_brdfs[name] = material_brdf(character_material(self.character))
+            else:
+                raise PrtError(f"the peak lights need the analytic BRDF of RPO {name!r} (one of {', '.join(CATALOGUE)} "
+                               f"or {MATERIAL_BRDF!r}): play it with --peaks 0")
+        return self._peak_brdfs[name]
+
     # -- settings ------------------------------------------------------------------------------
     @property
     def eye(self) -> np.ndarray:
@@ -185,7 +271,10 @@ class Player:
 
     def set_brdf(self, name: str) -> None:
         """Swap the material (an RPO of the run's catalogue, ``material``: the character's own, or an RPO file)."""
-        self.rpo = select_rpo(self.bundle, name)
+        rpo = select_rpo(self.bundle, name)
+        if self.peaks.peaks:
+            self.peak_brdf(rpo)  # checked before the swap
+        self.rpo = rpo
 
     def next_brdf(self) -> str:
         names = brdf_names(self.bundle)
@@ -199,6 +288,8 @@ class Player:
         c, s = np.cos(self.light_angle), np.sin(self.light_angle)
         R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float32)
         self._lobe_dirs = np.ascontiguousarray(self.lighting.dirs @ R.T)
+        self._peak_dirs = self.peaks.rotated_about_z(self.light_angle).directions if self.peaks.peaks \
+            else self.peaks.directions
 
     def orbit(self, d_azimuth: float, d_elevation: float = 0.0) -> None:
         self.camera_azimuth += d_azimuth
@@ -331,14 +422,16 @@ class Player:
         return out
 
     def compute(self, local: np.ndarray, timer: FrameTimer | None = None) -> tuple[PoseBatch, np.ndarray]:
-        """The whole per-frame compute path for ``(B, J, 4, 4)`` locals -> (posed batch, radiance (B, V, 3))."""
+        """The whole per-frame compute path for ``(B, J, 4, 4)`` locals -> (posed batch, radiance (B, V, 3)): the
+        graph(s) of :attr:`graph` with the residual lighting, plus the peak lights' term (the batch's
+        ``peak_visibility`` and ``residual_radiance`` are set)."""
         if self.graph == "overlap":
             return self.compute_overlapped(local, timer)
         t0 = time.perf_counter()
         state = self.pose(local)
         if timer is not None:
             timer.add("pose", time.perf_counter() - t0)
-        return state, self.shade(state, checked=False, timer=timer)
+        return state, self._with_peaks(state, self.shade(state, checked=False, timer=timer), timer)
 
     def compute_overlapped(self, local: np.ndarray,
                            timer: FrameTimer | None = None) -> tuple[PoseBatch, np.ndarray]:
@@ -346,8 +439,9 @@ class Player:
 
         The model needs only the pose features (``Poser.features``, ~40 us), so its onnxruntime call (which
         releases the GIL) runs on a worker thread - with ONE intra-op thread, its own session - while the
-        main thread does FK, LBS, frames and view directions on the other core; then the split shading
-        graph. Same numbers as the split path.
+        main thread does FK, LBS, frames and view directions on the other core, then the peaks' visibility (it
+        needs the posed mesh, not the model); then the split shading graph and the peaks' term. Same numbers as
+        the split path.
         """
         t0 = time.perf_counter()
         feats = self.poser.features(local)
@@ -359,14 +453,77 @@ class Player:
         fut = self._pool.submit(self._vis_overlap.run_unchecked, {"pose": feats})
         state = self.poser(local, self.eye, features=feats)
         t1 = time.perf_counter()
-        vis = fut.result()[0]
+        peak_vis = self._peak_visibility_raw(state) if self.peaks.peaks else None  # while the model runs
         t2 = time.perf_counter()
+        vis = fut.result()[0]
+        t3 = time.perf_counter()
         out = self._shade_each(state, vis, self._shading_feeds(state), checked=False)
+        t4 = time.perf_counter()
+        out = self._with_peaks(state, out, None, peak_vis)
         if timer is not None:
             timer.add("pose", t1 - t0)
-            timer.add("visibility", t2 - t1)  # the part of the model call not hidden behind the posing
-            timer.add("shading", time.perf_counter() - t2)
+            timer.add("visibility", t3 - t2)  # the part of the model call not hidden behind the posing and peaks
+            timer.add("shading", t4 - t3)
+            timer.add("peaks", (t2 - t1) + (time.perf_counter() - t4))
         return state, out
+
+    # -- peak lights -----------------------------------------------------------------------------
+    def _peak_visibility_raw(self, state: PoseBatch) -> np.ndarray:
+        """``(B, V, P)`` peak visibility in the batch's own (posed) vertex order (a per-vertex kind: no permutation;
+        ``exact`` traces the mesh in the original order, then is put in the posed one)."""
+        dirs, radii = self._peak_dirs, self.peaks.angular_radii
+        src = self.peak_source
+        if src is None:  # no blockers: the discs' share above each horizon only (no shadow)
+            b = state.features.shape[0]
+            return sphere_visibility_soa(state.in_order("positions", state.order), state.in_order("normals",
+                                         state.order), np.zeros((b, 0, 3), np.float32), np.zeros(0, np.float32),
+                                         dirs, radii)
+        if src.per_vertex:
+            return src.vertex_last(state.in_order("positions", state.order), state.in_order("normals", state.order),
+                                   state.skin, dirs, radii)
+        vis = src.vertex_last(state.positions, state.normals, state.skin, dirs, radii)
+        return vis if state.order is None else np.ascontiguousarray(vis[:, state.order])
+
+    def peak_visibility(self, state: PoseBatch) -> np.ndarray:
+        """``(B, V, P)`` float32 visible fraction of each peak's disc per vertex of a posed batch (original vertex
+        order; :attr:`peak_source`, turned with the light)."""
+        return self._to_original_of(state, self._peak_visibility_raw(state))
+
+    @staticmethod
+    def _to_original_of(state: PoseBatch, x: np.ndarray) -> np.ndarray:
+        """``(B, V, ...)`` from the batch's posed vertex order back to the original one."""
+        if state.order is None:
+            return x
+        out = np.empty_like(x)
+        out[:, state.order] = x
+        return out
+
+    def shade_peaks(self, state: PoseBatch, visibility: np.ndarray) -> np.ndarray:
+        """``(B, V, 3)`` float32 radiance of the peak lights, ``sum_p E_p f_r(l_p, v) max(n . l_p, 0) V_p``, for a
+        posed batch and its ``visibility (B, V, P)`` (original vertex order; :meth:`peak_brdf`, the directions
+        turned with the light, ``v`` toward the eye of the batch's view directions)."""
+        return peak_shading_soa(state.frames, state.view_dirs, self._peak_dirs, self.peaks.powers, visibility,
+                                self.peak_brdf())
+
+    def _with_peaks(self, state: PoseBatch, residual: np.ndarray, timer: FrameTimer | None,
+                    raw_visibility: np.ndarray | None = None) -> np.ndarray:
+        """``residual (B, V, 3)`` (the SH path's radiance, original order) plus the peaks' term; sets the batch's
+        ``residual_radiance`` and ``peak_visibility`` (original order). ``raw_visibility``: the peaks' visibility
+        already computed in the batch's posed order."""
+        state.residual_radiance = residual
+        if not self.peaks.peaks:
+            state.peak_visibility = np.zeros((*residual.shape[:2], 0), np.float32)
+            return residual
+        t0 = time.perf_counter()
+        vis = self._peak_visibility_raw(state) if raw_visibility is None else raw_visibility
+        o = state.order
+        term = peak_shading_soa(state.in_order("frames", o), state.in_order("view_dirs", o), self._peak_dirs,
+                                self.peaks.powers, vis, self.peak_brdf())  # in the posed order: no permutation in
+        state.peak_visibility = self._to_original_of(state, vis)
+        out = residual + self._to_original_of(state, term)
+        if timer is not None:
+            timer.add("peaks", time.perf_counter() - t0)
+        return out
 
     def surface_radiance(self, radiance: np.ndarray) -> np.ndarray:
         """The character's ``radiance (V, 3)`` times its base colour (its material,
@@ -487,7 +644,9 @@ class Player:
         summary = timer.summary()
         if timings is not None:
             timer.write_json(timings, extra={"clip": clip, "graph": self.graph, "brdf": self.rpo.name,
-                                             "lighting": self.lighting.source, "n_vertices": self.bundle.n_vertices,
+                                             "lighting": self.lighting.source, **self.peaks.to_dict(),
+                                             "peak_visibility": None if self.peak_source is None
+                                             else self.peak_source.kind, "n_vertices": self.bundle.n_vertices,
                                              "sh_order": self.order, "exposure": self.exposure.exposure,
                                              "white": self.exposure.white})
             outputs.append(Path(timings))

@@ -40,6 +40,11 @@ class PoseBatch:
         self.features = features  # (B, A)
         self.order = order
         self.skin = skin  # (B, J, 4, 4) float64 skinning matrices (world @ inverse bind), when posed by a Poser
+        #: ``(B, V, P)`` float32 visible fraction of each peak light's disc (original vertex order), set by
+        #: :meth:`prt_torch.player.player.Player.compute` (``P = 0`` without peaks)
+        self.peak_visibility: np.ndarray | None = None
+        #: ``(B, V, 3)`` float32 radiance of the SH path alone (the residual lighting; original order), set there too
+        self.residual_radiance: np.ndarray | None = None
 
     def __repr__(self) -> str:
         b, _, v = self._raw["positions"].shape

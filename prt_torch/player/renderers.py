@@ -50,7 +50,8 @@ def _build_onnx(args: argparse.Namespace, size: tuple[int, int]) -> Player:
         raise PrtError("--graph pipeline plays a cloth run's --sequence (a skinned clip plays fused, split or "
                        "overlap)")
     return Player(args.run, env=args.env, brdf=args.brdf, graph=args.graph, threads=args.threads, window_size=size,
-                  device=args.device)
+                  device=args.device, peaks=getattr(args, "peaks", None),
+                  peak_kind=getattr(args, "peak_visibility", None))
 
 
 #: the player's own renderer: the run's learned models (the default ``--renderer``)
