@@ -49,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
                           motions=tuple(args.motion))
     if not args.json:
         print(f"site written: {out} ({manifest['n_vertices']} vertices, {len(manifest['clips'])} clips, "
-              f"BRDFs {[r['name'] for r in manifest['rpos']]}, lights {[x['name'] for x in manifest['lights']]})")
+              f"BRDFs {[r['name'] for r in manifest['rpos']]}, lights {[x['name'] for x in manifest['lights']]}; "
+              f"peaks {_peaks_summary(manifest)})")
     status = 0
     if args.check:
         from prt_torch.web.check import check_site
@@ -74,3 +75,12 @@ def run(args: argparse.Namespace) -> int:
         finally:
             srv.close()
     return status
+
+
+def _peaks_summary(manifest: dict) -> str:
+    """``"sky 1, uffizi 2 (visibility: learned)"``: the peak lights per lighting, the page's peak-visibility graph."""
+    counts = [f"{x['name']} {len(x['peaks']['directions'])}" for x in manifest["lights"] if x.get("peaks")]
+    if not counts:
+        return "none"
+    pm = manifest.get("peaks_model")
+    return f"{', '.join(counts)} (visibility: {pm['source'] if pm else 'none, unshadowed'})"

@@ -4,10 +4,13 @@ For each fixed case (clip, frame, light angle, BRDF; the procedural sky and the 
 for it) the page renders one frame (``window.prt.setState`` / ``render`` / ``readPixels``) and the Python player
 (:class:`prt_torch.player.Player`, same run, same float32 joint transforms, same camera) renders the same
 frame; image PSNR over the pixels the character fully covers (:mod:`prt_torch.scoring`'s mask and PSNR
-rule); the difference image ``4 x |page - player|`` is written next to both frames. The visibility that
+rule); the difference image ``4 x |page - player|`` is written next to both frames. The cases follow the
+player's own peaks (a player that splits the sky's sun off is compared with the page's peaks on, one that does not
+with them off); a site whose sky has peaks is also checked with them on against :mod:`prt_torch.web.peaks`
+(``peak_frames``: the residual's player shading plus the peak term, the same PSNR rule). The visibility that
 onnxruntime-web computes for those poses is compared with onnxruntime's (relative L2; for int8 ``MatMulNBits``
-graphs with the float32 compute onnxruntime-web implements, see :func:`fp32_compute_session`). ``ms_per_frame`` is the
-median of the page's own step timings (posing + wasm inference + upload + draw, the draw waited for with
+graphs with the float32 compute onnxruntime-web implements, see :func:`fp32_compute_session`). ``ms_per_frame``
+is the median of the page's own step timings (posing + wasm inference + upload + draw, the draw waited for with
 ``gl.finish``) over a few steps; ``raf_fps_playing`` the frames/s of the page's own playing loop.
 
 Chromium: ``PRT_CHROMIUM``, else ``chromium`` / ``chromium-browser`` / ``google-chrome`` on PATH (Debian's
@@ -212,12 +215,15 @@ def check_site(site: str | os.PathLike[str], run: str | os.PathLike[str], chromi
     cases = cases if cases is not None else default_cases(m)
     light = m["lights"][0]
     check(light["name"] == "sky", "the site's first lighting preset must be the player's sky")
-    tm = ToneMap(light["tonemap"]["exposure"], light["tonemap"]["white"])
     out_dir = Path(artifacts) if artifacts is not None else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
     h, w = int(m["camera"]["height"]), int(m["camera"]["width"])
-    player = Player(run, brdf=cases[0]["brdf"], threads=1, graph="split", window_size=(h, w), exposure=tm)
+    player = Player(run, brdf=cases[0]["brdf"], threads=1, graph="split", window_size=(h, w))
+    # the page's peaks as the player plays them (a player that splits the sky's sun off: peaks on)
+    player_peaks = bool(getattr(getattr(player, "peaks", None), "peaks", None)) and bool(light.get("peaks"))
+    tm_entry = light["peaks"]["tonemap"] if player_peaks else light["tonemap"]
+    tm = player.exposure = ToneMap(tm_entry["exposure"], tm_entry["white"])
     results: list[dict[str, Any]] = []
     try:
         ch = player.character
@@ -234,7 +240,7 @@ def check_site(site: str | os.PathLike[str], run: str | os.PathLike[str], chromi
                 state, rad = player.compute(local)
                 ref = player.render_frame(state, rad)
                 mask = masker.mask(state.positions_vx3(0))
-                img, _ = ps.frame({**case, "light": "sky", "playing": False, "unshadowed": False,
+                img, _ = ps.frame({**case, "light": "sky", "playing": False, "unshadowed": False, "peaks": player_peaks,
                                    "tonemap": {"exposure": tm.exposure, "white": tm.white}})
                 check(img.shape == ref.shape, f"page frame {img.shape} vs player frame {ref.shape}")
                 psnr = image_psnr(img, ref, mask)
@@ -255,9 +261,10 @@ def check_site(site: str | os.PathLike[str], run: str | os.PathLike[str], chromi
                     write_png(out_dir / f"{stem}_diff.png", abs_diff_image(img, ref))
                     entry["diff_image"] = str(out_dir / f"{stem}_diff.png")
                 results.append(entry)
+            peaks = _peak_cases(ps, player, m, site, cases, masker, out_dir) if light.get("peaks") else []
             steps = []
             ps.frame({"clip": cases[0]["clip"], "frame": 0, "brdf": cases[0]["brdf"], "lightAngle": 0.0,
-                      "syncGpu": True})
+                      "syncGpu": True, "peaks": bool(light.get("peaks"))})
             c0 = next(c for c in m["clips"] if c["name"] == cases[0]["clip"])
             for k in range(timing_steps):
                 ps.page.evaluate("s => window.prt.setState(s)", {"frame": k % c0["frames"]})
@@ -279,15 +286,64 @@ def check_site(site: str | os.PathLike[str], run: str | os.PathLike[str], chromi
         player.close()
     med = {key: float(statistics.median(s[key] for s in steps)) for key in ("step_ms", "pose_ms", "visibility_ms",
                                                                               "render_ms")}
-    psnr_min = min(r["psnr"] for r in results)
+    psnr_min = min(r["psnr"] for r in results + peaks)
     vis_rel = float(np.sqrt(vis_err_num / max(vis_err_den, 1e-30)))
     return {"psnr_vs_player": psnr_min, "console_errors": errors, "ms_per_frame": med["step_ms"],
             "ms_pose": med["pose_ms"], "ms_visibility": med["visibility_ms"], "ms_render": med["render_ms"],
             "frames_per_s": 1000.0 / max(med["step_ms"], 1e-9), "raf_fps_playing": raf_fps,
-            "visibility_rel_err": vis_rel, "frames": results,
+            "visibility_rel_err": vis_rel, "frames": results, "peak_frames": peaks,
             "visibility_rel_err_vs_player": float(np.sqrt(vp_num / max(vis_err_den, 1e-30))),
             "visibility_reference": "onnxruntime" if fp32 is None else
             "onnxruntime, MatMulNBits at accuracy_level 0 (fp32 compute, as onnxruntime-web runs it)",
             "n_vertices": int(m["n_vertices"]), "wasm_threads": wasm_threads, "gl_renderer": gl_renderer,
             "ok": bool(psnr_min >= MIN_PSNR_DB and not errors and vis_rel <= MAX_VIS_REL_ERR),
             "thresholds": {"psnr_db": MIN_PSNR_DB, "visibility_rel_err": MAX_VIS_REL_ERR}}
+
+
+def _peak_cases(ps: PageSession, player: Any, m: dict[str, Any], site: str | os.PathLike[str],
+                cases: list[dict[str, Any]], masker: Any, out_dir: Path | None) -> list[dict[str, Any]]:
+    """The page with the sky's peaks on against :func:`prt_torch.web.peaks.page_radiance` (the player's residual
+    shading + the peak term, the run's ``peaks.onnx`` in onnxruntime), rendered by the player, one entry per case
+    (image PSNR as the other cases)."""
+    from prt_torch.player.lighting import load_lighting
+    from prt_torch.player.peaks import load_peak_lighting
+    from prt_torch.player.tonemap import ToneMap
+    from prt_torch.rig.material import character_material
+    from prt_torch.scoring.statistics import image_psnr
+    from prt_torch.scoring.strips import abs_diff_image, write_png
+    from prt_torch.web.peaks import PeakGraph, page_brdf, page_radiance
+    from prt_torch.web.site import ASSETS, PEAKS_MODEL, site_local
+
+    light = m["lights"][0]
+    tm = ToneMap(light["peaks"]["tonemap"]["exposure"], light["peaks"]["tonemap"]["white"])
+    split = load_peak_lighting(None, player.order, "auto")
+    graph_file = Path(site) / ASSETS / PEAKS_MODEL
+    graph = PeakGraph(graph_file) if m.get("peaks_model") else None
+    material = character_material(player.character)
+    whole_lighting = load_lighting(None, player.order)
+    saved = player.lighting, player.exposure, player.light_angle
+    out = []
+    try:
+        player.exposure = tm
+        for i, case in enumerate(cases):
+            local = site_local(player.character, case["clip"], case["frame"])
+            player.set_brdf(case["brdf"])
+            state, rad, _ = page_radiance(player, local, whole_lighting, split, case["lightAngle"], graph,
+                                          page_brdf(case["brdf"], material))
+            ref = player.render_frame(state, rad)
+            mask = masker.mask(state.positions_vx3(0))
+            img, _ = ps.frame({**case, "light": "sky", "playing": False, "unshadowed": False, "peaks": True,
+                               "tonemap": {"exposure": tm.exposure, "white": tm.white}})
+            entry = {**case, "peaks": True, "psnr": float(image_psnr(img, ref, mask)), "mask_pixels": int(mask.sum())}
+            if out_dir is not None:
+                stem = f"case{i}_{case['clip']}_{case['frame']}_{case['brdf']}_peaks"
+                write_png(out_dir / f"{stem}_page.png", img)
+                write_png(out_dir / f"{stem}_player.png", ref)
+                write_png(out_dir / f"{stem}_diff.png", abs_diff_image(img, ref))
+                entry["diff_image"] = str(out_dir / f"{stem}_diff.png")
+            out.append(entry)
+    finally:
+        player.lighting, player.exposure, angle = saved
+        player.light_angle = 0.0
+        player.rotate_light(angle)
+    return out

@@ -10,6 +10,9 @@ Site layout (every file written atomically)::
                                                  size and sha256 of data.bin and of the model (the page checks both)
     DIR/assets/data.bin                          little-endian arrays (8-byte aligned), see SITE_ARRAYS
     DIR/assets/pose_to_visibility.onnx           the run's visibility graph, byte for byte
+    DIR/assets/peak_visibility.onnx              the peak lights' visibility graph (:func:`write_peak_graph`: the
+                                                 run's learned one, else its blocker spheres'), when a lighting has
+                                                 peaks
     DIR/assets/basecolor.png                     the material's base-colour texture (when it has one)
 
 The arrays are what :class:`prt_torch.player.posing.Poser` and the shading graph take: rest mesh, sparse
@@ -35,6 +38,7 @@ import numpy as np
 from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path, atomic_write_bytes, atomic_write_json
 from prt_torch.shapes import check_shape
+from prt_torch.web.peaks import MAX_PAGE_PEAKS, brdf_entry, page_brdf, peaks_entry
 
 #: version of the site format (manifest key ``format``)
 SITE_FORMAT = "prt_torch.web/1"
@@ -42,6 +46,7 @@ ASSETS = "assets"
 MANIFEST = "manifest.json"
 DATA = "data.bin"
 MODEL = "pose_to_visibility.onnx"
+PEAKS_MODEL = "peak_visibility.onnx"
 TEXTURE = "basecolor.png"
 
 #: npm files copied into the site: (package-relative source under web/node_modules, site-relative target)
@@ -105,16 +110,35 @@ def _lighting_entry(name: str, lighting: Any) -> dict[str, Any]:
             "coeffs": np.asarray(lighting.coeffs, np.float32).astype(float).tolist()}
 
 
+def site_light_sources(env: list[str] | tuple[str, ...] = (), presets: bool = True) -> dict[str, Path | None]:
+    """``{name: env map path, or None for the procedural sky}``: the player's presets (:data:`prt_torch.scoring.
+    lighting.PLAYER_LIGHT`, the shared env maps of :data:`~prt_torch.scoring.lighting.ENVMAPS` found) and the
+    ``env`` files (named by stem)."""
+    from prt_torch.scoring.lighting import ENVMAPS, PLAYER_LIGHT, shared_data_dir
+
+    out: dict[str, Path | None] = {PLAYER_LIGHT: None}
+    data = shared_data_dir() if presets else None
+    for name, file in ENVMAPS.items():
+        if data is not None and (data / "envmaps" / file).is_file():
+            out[name] = data / "envmaps" / file
+    for e in env:
+        out[Path(e).stem] = Path(e)
+    return out
+
+
 def site_lightings(order: int, env: list[str] | tuple[str, ...] = (), presets: bool = True) -> dict[str, Any]:
     """``{name: Lighting}``: the player's presets (sky, shared env maps) and the ``env`` files (named by stem)."""
     from prt_torch.player.lighting import load_lighting
-    from prt_torch.scoring.lighting import shared_data_dir, shipping_lights
 
-    out = dict(shipping_lights(order, shared_data_dir() if presets else None))
-    for e in env:
-        p = Path(e)
-        out[p.stem] = load_lighting(p, order)
-    return out
+    return {name: load_lighting(src, order) for name, src in site_light_sources(env, presets).items()}
+
+
+def site_peak_lightings(order: int, env: list[str] | tuple[str, ...] = (), presets: bool = True) -> dict[str, Any]:
+    """``{name: PeakLighting}`` of the same presets, split by :func:`prt_torch.player.peaks.load_peak_lighting`
+    (``peaks="auto"``: the sky's sun, a map's detected peaks; no peak: an empty split)."""
+    from prt_torch.player.peaks import load_peak_lighting
+
+    return {name: load_peak_lighting(src, order, "auto") for name, src in site_light_sources(env, presets).items()}
 
 
 def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tuple[str, ...] = (),
@@ -194,7 +218,8 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         blob.add(f"rpo:{name}:u", u, "float32")
         blob.add(f"rpo:{name}:w", r.w, "float32")
         rpo_entries.append({"name": name, "tint": r.tint.astype(float).tolist(), "M": f"rpo:{name}:M",
-                            "u": f"rpo:{name}:u", "w": f"rpo:{name}:w"})
+                            "u": f"rpo:{name}:u", "w": f"rpo:{name}:w",
+                            "brdf": brdf_entry(page_brdf(name, material))})
     base = vertex_base_color(ch)
     blob.add("base_color", base if base is not None else np.ones((ch.num_vertices, 3), np.float32), "float32")
     texture = None
@@ -207,7 +232,19 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         atomic_write_bytes(out / ASSETS / TEXTURE, png.tobytes())
         texture = TEXTURE
     lights = site_lightings(order, tuple(env), env_presets)
-    tonemaps = player_tonemaps(bundle.run_dir, lights, names[0], ch, clips[0]["name"])
+    peak_lights = site_peak_lightings(order, tuple(env), env_presets)
+    peak_source = write_peak_graph(bundle.run, ch, out / ASSETS / PEAKS_MODEL) \
+        if any(pl.peaks for pl in peak_lights.values()) else None
+    peak_graph = out / ASSETS / PEAKS_MODEL if peak_source is not None else None
+    tonemaps = player_tonemaps(bundle.run_dir, lights, names[0], ch, clips[0]["name"], peak_lights, peak_graph,
+                               material)
+    peaks_model = None
+    if peak_graph is not None:
+        peak_bytes = peak_graph.read_bytes()
+        peaks_model = {"file": PEAKS_MODEL, "source": peak_source,
+                       "inputs": ["positions", "normals", "skin", "directions", "angular_radii"],
+                       "output": "peak_visibility", "bytes": len(peak_bytes),
+                       "sha256": hashlib.sha256(peak_bytes).hexdigest()}
     data = blob.bytes()
     atomic_write_bytes(out / ASSETS / DATA, data)
     model_bytes = bundle.run.graph_path("visibility").read_bytes()
@@ -236,7 +273,11 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         "clips": clips,
         "rpos": rpo_entries,
         "default_brdf": names[0],
-        "lights": [{**_lighting_entry(n, lt), "tonemap": tonemaps[n]} for n, lt in lights.items()],
+        "lights": [{**_lighting_entry(n, lt), "tonemap": tonemaps[n]["whole"],
+                    "peaks": _with_tonemap(peaks_entry(peak_lights[n]), tonemaps[n].get("peaks"))}
+                   for n, lt in lights.items()],
+        "peaks_model": peaks_model,
+        "max_peaks": MAX_PAGE_PEAKS,
         "camera": {"center": center.astype(float).tolist(), "radius": radius, "azimuth": CAMERA_AZIMUTH,
                    "elevation": CAMERA_ELEVATION, "distance": CAMERA_DISTANCE, "view_angle": 30.0,
                    "up": [0.0, 0.0, 1.0], "width": 640, "height": 480},
@@ -270,25 +311,67 @@ def site_local(character: Any, clip: str, frames: Any) -> np.ndarray:
     return out
 
 
-def player_tonemaps(run: Path, lights: dict[str, Any], brdf: str, character: Any, clip: str) -> dict[str, Any]:
-    """``{light: {exposure, white}}``: the tone map the Python player fixes from the first frame of ``clip``
-    (:func:`prt_torch.player.tonemap.auto_tonemap` of its radiance times the base colour) under each lighting."""
+def write_peak_graph(run: Any, character: Any, path: Path) -> str | None:
+    """Write the page's peak-visibility graph to ``path`` and say which it is, by the Python player's rule (its
+    default :class:`~prt_torch.player.peaks.PeakVisibility`): ``"learned"`` - the run's ``peaks.onnx``, byte for
+    byte; else ``"spheres"`` - the run's blocker spheres (``blockers.npz``) through the same cone kernel
+    (:func:`prt_torch.export.peaks_graph.export_peak_graph`; needs torch, the ``export`` extra); else ``None`` (no
+    graph: the page's peaks cast no shadow) and a stale graph at ``path`` is removed."""
+    if run.peak_graph_path.is_file():
+        atomic_write_bytes(path, run.peak_graph_path.read_bytes())
+        return "learned"
+    path.unlink(missing_ok=True)
+    if not run.blockers_path.is_file():
+        return None
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        return None
+    from prt_torch.blockers.spheres import SphereSet
+    from prt_torch.export.peaks_graph import example_peaks, export_peak_graph
+
+    dirs, radii = example_peaks()
+    v = character.rest_vertices
+    ex = {"positions": np.asarray(v, np.float32)[None], "normals": np.asarray(character.rest_normals, np.float32)[None],
+          "skin": np.broadcast_to(np.eye(4, dtype=np.float32), (1, character.num_joints, 4, 4)),
+          "directions": dirs, "angular_radii": radii}
+    export_peak_graph(SphereSet.load(run.blockers_path), path, ex, {"prt.source": run.blockers_path.name})
+    return "spheres"
+
+
+def player_tonemaps(run: Path, lights: dict[str, Any], brdf: str, character: Any, clip: str,
+                    peak_lights: dict[str, Any] | None = None, peak_graph: Path | None = None,
+                    material: Any = None) -> dict[str, Any]:
+    """``{light: {"whole": {exposure, white}, "peaks": {exposure, white}}}``: the tone map the Python player fixes
+    from the first frame of ``clip`` (:func:`prt_torch.player.tonemap.auto_tonemap` of its radiance times the base
+    colour) under each lighting, whole on the SH path, and (``"peaks"``, for a lighting of ``peak_lights`` with
+    peaks) the page's peaks-on radiance (:func:`prt_torch.web.peaks.page_radiance`, ``peak_graph`` its visibility)."""
     from prt_torch.player.player import Player
+    from prt_torch.web.peaks import PeakGraph, page_radiance
 
     p = Player(run, brdf=brdf, threads=1, graph="split")
+    graph = PeakGraph(peak_graph) if peak_graph is not None else None
+    analytic = page_brdf(brdf, material)
     try:
         local = site_local(character, clip, 0)
-        out = {}
+        out: dict[str, Any] = {}
         for name, lt in lights.items():
-            p.lighting = lt
-            p.rotate_light(0.0)
-            p.exposure = None
-            _, rad = p.compute(local)
-            p.colors(rad[0])
-            out[name] = {"exposure": float(p.exposure.exposure), "white": float(p.exposure.white)}
+            out[name] = {}
+            split = (peak_lights or {}).get(name)
+            for key, pl in (("whole", None), ("peaks", split)):
+                if key == "peaks" and (pl is None or not pl.peaks):
+                    continue
+                p.exposure = None
+                _, rad, _ = page_radiance(p, local, lt, pl, 0.0, graph, analytic)
+                p.colors(rad[0])
+                out[name][key] = {"exposure": float(p.exposure.exposure), "white": float(p.exposure.white)}
         return out
     finally:
         p.close()
+
+
+def _with_tonemap(entry: dict[str, Any] | None, tonemap: dict[str, float] | None) -> dict[str, Any] | None:
+    return None if entry is None else {**entry, "tonemap": tonemap}
 
 
 def _material_rpo(material: Any, order: int, n_terms: int, run: Any = None) -> Path | None:

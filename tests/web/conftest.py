@@ -82,7 +82,9 @@ def page(browser: Any, site_url: str):
 
 @pytest.fixture(scope="session")
 def player(tiny_run: Path, checked_site: tuple[Path, dict[str, Any]]):
-    """The Python player of the tiny run with the site's sky tone map (the page's reference)."""
+    """The Python player of the tiny run with the site's sky tone map (the page's reference): its SH path
+    (:meth:`~prt_torch.player.player.Player.shade`) shades the whole sky, as the page does with its peaks off."""
+    from prt_torch.player.lighting import load_lighting
     from prt_torch.player.player import Player
     from prt_torch.player.tonemap import ToneMap
     from prt_torch.web.site import read_manifest
@@ -91,5 +93,7 @@ def player(tiny_run: Path, checked_site: tuple[Path, dict[str, Any]]):
     tm = m["lights"][0]["tonemap"]
     p = Player(tiny_run, threads=1, graph="split", window_size=(480, 640),
                exposure=ToneMap(tm["exposure"], tm["white"]))
+    p.lighting = load_lighting(None, p.order)  # the whole lighting on the SH path (a peak-splitting player: too)
+    p.rotate_light(0.0)
     yield p
     p.close()

@@ -1,9 +1,11 @@
-// The browser player: assets -> posing (posing.js) -> onnxruntime-web visibility -> RPO shading (prt_shading.glsl).
-// window.prt is the page's scripting interface (used by `prt web --check` and tests/web).
+// The browser player: assets -> posing (posing.js) -> onnxruntime-web visibility (and, for a lighting with peak
+// lights, the run's peaks.onnx: each peak's visible fraction per vertex) -> RPO shading of the (residual) lighting
+// plus the peaks' analytic term (prt_shading.glsl). A site without peaks.onnx shades its peaks unshadowed (V = 1:
+// only the BRDF's horizon). window.prt is the page's scripting interface (used by `prt web --check` and tests/web).
 import * as THREE from 'three';
 import * as ort from 'onnxruntime-web';
 import { Poser } from './posing.js';
-import { makeMaterial, rpoTexture, stateLayout } from './shading.js';
+import { MAX_PEAKS, PEAK_TEXEL, RADIANCE_WIDTH, VIS_TEXEL, makeMaterial, rpoTexture, stateLayout } from './shading.js';
 
 const $ = (id) => document.getElementById(id);
 const ASSETS = 'assets/';
@@ -119,10 +121,11 @@ function cameraEye(cam, azimuth, elevation) {
 }
 
 class App {
-  constructor(m, arrays, session, glsl, texture) {
+  constructor(m, arrays, session, glsl, texture, peakSession) {
     this.m = m;
     this.a = arrays;
     this.session = session;
+    this.peakSession = peakSession; // the run's peaks.onnx (null: peaks unshadowed)
     const V = m.n_vertices, nc = m.order * m.order;
     this.V = V;
     this.nc = nc;
@@ -136,6 +139,10 @@ class App {
     this.stateTex.generateMipmaps = false;
     this.posed = null;
     this.visibility = new Float32Array(V * nc);
+    this.peakVis = new Float32Array(V * MAX_PEAKS).fill(1); // (V, 4): peak p's visible fraction at vertex v
+    this.hasPeaks = m.lights.some((l) => l.peaks);
+    this.peaksOn = this.hasPeaks; // on by default when the site has peaks
+    this.peakDirs = new Float32Array(0); // (P, 3) the active peaks' directions, turned with the light
     // settings
     this.clip = 0;
     this.frame = 0;
@@ -147,7 +154,7 @@ class App {
     this.azimuth = m.camera.azimuth;
     this.elevation = m.camera.elevation;
     this.exposure = null; // {exposure, white}: fixed per lighting preset by `prt web` (the Python player's rule)
-    this.stats = { pose_ms: 0, visibility_ms: 0, render_ms: 0, step_ms: 0, fps: 0, steps: 0 };
+    this.stats = { pose_ms: 0, visibility_ms: 0, peaks_ms: 0, render_ms: 0, step_ms: 0, fps: 0, steps: 0 };
     this.hasTexture = Boolean(texture) && Boolean(arrays.uv);
     this.perPixel = this.hasTexture;
     this.initThree(glsl, texture);
@@ -171,6 +178,13 @@ class App {
     this.camera = new THREE.PerspectiveCamera(m.camera.view_angle, m.camera.width / m.camera.height, 0.01 * m.camera.radius, 20 * m.camera.radius);
     this.camera.up.set(...m.camera.up);
     const sizes = { order: m.order, nTerms: m.n_terms, nLobes: m.lights[0].dirs.length };
+    for (const l of m.lights) {
+      need(l.dirs.length === sizes.nLobes && (!l.peaks || l.peaks.dirs.length === sizes.nLobes),
+        `lighting ${l.name}: every lighting (and its residual) must have ${sizes.nLobes} lobes`);
+      need(!l.peaks || l.peaks.directions.length <= MAX_PEAKS, `lighting ${l.name}: at most ${MAX_PEAKS} peaks`);
+    }
+    this.sizes = sizes;
+    this.glsl = glsl;
     this.matrixForm = new URLSearchParams(location.search).get('form') === 'matrix';
     this.material = makeMaterial(glsl, sizes, this.layout, m.gaunt, this.matrixForm);
     const u = this.material.uniforms;
@@ -223,17 +237,40 @@ class App {
     u.u_rpoW.value.set(this.a[r.w]);
     u.u_rpoU.value.set(this.a[r.u]);
     u.u_tint.value.set(...r.tint);
+    this.brdfAnalytic = r.brdf || null; // null: an RPO of no known BRDF, no peak term
+    if (r.brdf) {
+      u.u_brdfKind.value = r.brdf.kind;
+      u.u_brdfParams.value.set(...r.brdf.params);
+    }
+    this.applyLight();
+  }
+
+  // the lighting's peaks when they are shaded (toggle on, the lighting has some, the BRDF is analytic), else null
+  activePeaks() {
+    const pk = this.m.lights[this.light].peaks;
+    return this.peaksOn && pk && this.brdfAnalytic ? pk : null;
   }
 
   applyLight() {
     const lt = this.m.lights[this.light];
     const u = this.material.uniforms;
     const c = Math.cos(this.lightAngle), s = Math.sin(this.lightAngle);
-    lt.dirs.forEach((d, k) => { // dirs @ R^T, R = rotation about z by lightAngle (Player.rotate_light)
+    const pk = this.activePeaks();
+    const lobes = pk || lt; // peaks on: the residual's lobes on the SH path
+    lobes.dirs.forEach((d, k) => { // dirs @ R^T, R = rotation about z by lightAngle (Player.rotate_light)
       u.u_lobeDir.value[k].set(c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]);
     });
-    lt.coeffs.forEach((bands, k) => bands.forEach((rgb, l) => u.u_lobeG.value[k * this.m.order + l].set(...rgb)));
-    const tm = this.exposure || lt.tonemap;
+    lobes.coeffs.forEach((bands, k) => bands.forEach((rgb, l) => u.u_lobeG.value[k * this.m.order + l].set(...rgb)));
+    const n = pk ? pk.directions.length : 0;
+    u.u_nPeaks.value = n;
+    this.peakDirs = new Float32Array(3 * n);
+    for (let p = 0; p < n; p++) {
+      const d = pk.directions[p];
+      this.peakDirs.set([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]], 3 * p);
+      u.u_peakDir.value[p].set(...this.peakDirs.subarray(3 * p, 3 * p + 3));
+      u.u_peakPower.value[p].set(...pk.powers[p]);
+    }
+    const tm = this.exposure || (pk && pk.tonemap) || lt.tonemap;
     u.u_exposure.value = tm.exposure;
     u.u_white.value = tm.white;
   }
@@ -257,7 +294,42 @@ class App {
     return out[this.m.model.output].data;
   }
 
-  // one step: pose the current frame, run the model, upload, render
+  // peak visibility (B, V, P) of posed positions / normals (B*V*3) and skinning matrices (B*J*16, row-major 4x4)
+  async runPeaks(positions, normals, skin, directions, radii, batch = 1) {
+    const V = positions.length / (3 * batch), P = radii.length, J = this.m.n_joints;
+    const f32 = (a) => (a instanceof Float32Array ? a : Float32Array.from(a));
+    const feeds = {
+      positions: new ort.Tensor('float32', f32(positions), [batch, V, 3]),
+      normals: new ort.Tensor('float32', f32(normals), [batch, V, 3]),
+      skin: new ort.Tensor('float32', f32(skin), [batch, J, 4, 4]),
+      directions: new ort.Tensor('float32', f32(directions), [P, 3]),
+      angular_radii: new ort.Tensor('float32', f32(radii), [P]),
+    };
+    const out = await this.peakSession.run(feeds);
+    return out[this.m.peaks_model.output].data;
+  }
+
+  // the state texture from per-vertex arrays: positions (V*3), frames (V*9), visibility (V*NC), peak visibility
+  // (V*4, peak p of vertex v at 4v + p); visibility null leaves the coefficients as they are
+  fillState(pos, fr, vis, peakVis) {
+    const { P, R } = this.layout;
+    const st = this.state, nc = this.nc;
+    for (let v = 0; v < this.V; v++) {
+      const o = 4 * ((Math.floor(v / R) * R * P) + (v % R) * P);
+      st[o] = pos[3 * v]; st[o + 1] = pos[3 * v + 1]; st[o + 2] = pos[3 * v + 2];
+      for (let r = 0; r < 3; r++) {
+        st[o + 4 * (r + 1)] = fr[9 * v + 3 * r];
+        st[o + 4 * (r + 1) + 1] = fr[9 * v + 3 * r + 1];
+        st[o + 4 * (r + 1) + 2] = fr[9 * v + 3 * r + 2];
+      }
+      const q = o + 4 * PEAK_TEXEL;
+      for (let p = 0; p < MAX_PEAKS; p++) st[q + p] = peakVis[MAX_PEAKS * v + p];
+      if (vis) for (let i = 0; i < nc; i++) st[o + 4 * VIS_TEXEL + i] = vis[v * nc + i];
+    }
+    this.stateTex.needsUpdate = true;
+  }
+
+  // one step: pose the current frame, run the model (and the peak graph), upload, render
   async step() {
     const t0 = performance.now();
     const local = this.localNow();
@@ -267,19 +339,17 @@ class App {
     const t1 = performance.now();
     if (visPromise) this.visibility = await visPromise;
     const t2 = performance.now();
-    const { P, R } = this.layout;
-    const st = this.state, pos = this.posed.positions, fr = this.posed.frames, vis = this.visibility, nc = this.nc;
-    for (let v = 0; v < this.V; v++) {
-      const o = 4 * ((Math.floor(v / R) * R * P) + (v % R) * P);
-      st[o] = pos[3 * v]; st[o + 1] = pos[3 * v + 1]; st[o + 2] = pos[3 * v + 2];
-      for (let r = 0; r < 3; r++) {
-        st[o + 4 * (r + 1)] = fr[9 * v + 3 * r];
-        st[o + 4 * (r + 1) + 1] = fr[9 * v + 3 * r + 1];
-        st[o + 4 * (r + 1) + 2] = fr[9 * v + 3 * r + 2];
-      }
-      if (!this.unshadowed) for (let i = 0; i < nc; i++) st[o + 16 + i] = vis[v * nc + i];
+    const pk = this.activePeaks();
+    if (pk && this.peakSession && !this.unshadowed) {
+      const n = pk.directions.length, V = this.V;
+      const pv = await this.runPeaks(this.posed.positions, this.posed.normals, this.poser.skin, this.peakDirs,
+        pk.angular_radii);
+      for (let v = 0; v < V; v++) for (let p = 0; p < n; p++) this.peakVis[MAX_PEAKS * v + p] = pv[n * v + p];
+    } else {
+      this.peakVis.fill(1); // unshadowed, or no peak graph: the BRDF's horizon only
     }
-    this.stateTex.needsUpdate = true;
+    const t2p = performance.now();
+    this.fillState(this.posed.positions, this.posed.frames, this.unshadowed ? null : this.visibility, this.peakVis);
     const u = this.material.uniforms;
     u.u_unshadowed.value = this.unshadowed;
     u.u_perPixel.value = this.perPixel && this.hasTexture;
@@ -290,8 +360,51 @@ class App {
     }
     const t3 = performance.now();
     const s = this.stats;
-    s.pose_ms = t1 - t0; s.visibility_ms = t2 - t1; s.render_ms = t3 - t2; s.step_ms = t3 - t0; s.steps += 1;
+    s.pose_ms = t1 - t0; s.visibility_ms = t2 - t1; s.peaks_ms = t2p - t2; s.render_ms = t3 - t2p; s.step_ms = t3 - t0;
+    s.steps += 1;
     return { ...s };
+  }
+
+  // per-vertex radiance (V*3, before the base colour) of the state texture as it is: the same vertex shader, one
+  // point per vertex into a float target
+  radiance() {
+    if (!this.radianceScene) {
+      const rows = Math.ceil(this.V / RADIANCE_WIDTH);
+      const mat = makeMaterial(this.glsl, this.sizes, this.layout, this.m.gaunt, this.matrixForm,
+        { radianceOut: true, uniforms: this.material.uniforms });
+      const g = new THREE.BufferGeometry();
+      const vid = new Float32Array(this.V);
+      for (let v = 0; v < this.V; v++) vid[v] = v;
+      g.setAttribute('position', new THREE.BufferAttribute(this.a.rest_vertices, 3));
+      g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
+      g.setAttribute('a_uv', new THREE.BufferAttribute(new Float32Array(2 * this.V), 2));
+      g.setAttribute('a_base', new THREE.BufferAttribute(this.a.base_color, 3));
+      const pts = new THREE.Points(g, mat);
+      pts.frustumCulled = false;
+      this.radianceScene = new THREE.Scene();
+      this.radianceScene.add(pts);
+      this.radianceTarget = new THREE.WebGLRenderTarget(RADIANCE_WIDTH, rows, { type: THREE.FloatType,
+        format: THREE.RGBAFormat, minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, depthBuffer: false });
+      this.radianceRows = rows;
+    }
+    const u = this.material.uniforms;
+    u.u_radianceRows.value = this.radianceRows;
+    u.u_unshadowed.value = this.unshadowed;
+    const r = this.renderer;
+    const clear = new THREE.Color();
+    r.getClearColor(clear);
+    const alpha = r.getClearAlpha();
+    r.setRenderTarget(this.radianceTarget);
+    r.setClearColor(new THREE.Color(0, 0, 0), 0);
+    r.clear();
+    r.render(this.radianceScene, this.camera);
+    const px = new Float32Array(RADIANCE_WIDTH * this.radianceRows * 4);
+    r.readRenderTargetPixels(this.radianceTarget, 0, 0, RADIANCE_WIDTH, this.radianceRows, px);
+    r.setRenderTarget(null);
+    r.setClearColor(clear, alpha);
+    const out = new Float32Array(3 * this.V);
+    for (let v = 0; v < this.V; v++) for (let e = 0; e < 3; e++) out[3 * v + e] = px[4 * v + e];
+    return out;
   }
 
   readPixels() {
@@ -315,6 +428,7 @@ function bindUi(app) {
   fill($('brdf'), m.rpos.map((r) => r.name));
   $('brdf').value = app.brdf;
   $('texRow').hidden = !app.hasTexture;
+  $('peaksRow').hidden = !app.hasPeaks;
   const sync = () => {
     $('clip').value = app.clip;
     $('frame').max = app.clipInfo.frames - 1;
@@ -327,6 +441,7 @@ function bindUi(app) {
     $('env').value = app.light;
     $('brdf').value = app.brdf;
     $('unshadowed').checked = app.unshadowed;
+    $('peaks').checked = app.peaksOn;
   };
   app.sync = sync;
   $('clip').onchange = (e) => { app.clip = Number(e.target.value); app.frame = 0; sync(); };
@@ -336,6 +451,7 @@ function bindUi(app) {
   $('env').onchange = (e) => { app.light = Number(e.target.value); app.applyLight(); sync(); };
   $('brdf').onchange = (e) => { app.brdf = Number(e.target.value); app.applyBrdf(); sync(); };
   $('unshadowed').onchange = (e) => { app.unshadowed = e.target.checked; sync(); };
+  $('peaks').onchange = (e) => { app.peaksOn = e.target.checked; app.applyLight(); sync(); };
   $('perPixel').onchange = (e) => { app.perPixel = e.target.checked; };
   // keyboard shortcuts of the Python player (Player._bind_keys) plus playback keys
   window.addEventListener('keydown', (e) => {
@@ -345,6 +461,7 @@ function bindUi(app) {
     else if (k === 'b') { app.brdf = (app.brdf + 1) % m.rpos.length; app.applyBrdf(); }
     else if (k === 'e') { app.light = (app.light + 1) % m.lights.length; app.applyLight(); }
     else if (k === 'u') app.unshadowed = !app.unshadowed;
+    else if (k === 'p' && app.hasPeaks) { app.peaksOn = !app.peaksOn; app.applyLight(); }
     else if (k === ' ') app.playing = !app.playing;
     else if (k === ',') { app.playing = false; app.frame = Math.max(0, app.frame - 1); }
     else if (k === '.') { app.playing = false; app.frame = Math.min(app.clipInfo.frames - 1, app.frame + 1); }
@@ -378,8 +495,9 @@ function loop(app) {
       frames += 1;
       if (now - fpsT0 > 500) { app.stats.fps = frames * 1000 / (now - fpsT0); frames = 0; fpsT0 = now; }
       $('stats').textContent = `${app.clipInfo.name} ${app.frame}  ${app.m.rpos[app.brdf].name}  ${app.m.lights[app.light].name}` +
-        `${app.unshadowed ? '  UNSHADOWED' : ''}\nstep ${s.step_ms.toFixed(1)} ms (pose ${s.pose_ms.toFixed(1)}, ` +
-        `visibility ${s.visibility_ms.toFixed(1)}, draw submit ${s.render_ms.toFixed(1)})  ${app.stats.fps.toFixed(1)} fps`;
+        `${app.unshadowed ? '  UNSHADOWED' : ''}${app.activePeaks() ? `  ${app.activePeaks().directions.length} peak(s)` : ''}` +
+        `\nstep ${s.step_ms.toFixed(1)} ms (pose ${s.pose_ms.toFixed(1)}, visibility ${s.visibility_ms.toFixed(1)}, ` +
+        `peaks ${s.peaks_ms.toFixed(1)}, draw submit ${s.render_ms.toFixed(1)})  ${app.stats.fps.toFixed(1)} fps`;
     } catch (e) {
       app.paused = true;
       showError(e.message || String(e));
@@ -406,8 +524,18 @@ async function start() {
     const runtime = await missingRuntime(); // ort's own message for a missing runtime file names no file
     throw new AssetError(runtime || `the visibility model (${ASSETS}${m.model.file}) could not be loaded by onnxruntime-web: ${e.message || e}`);
   }
+  let peakSession = null;
+  if (m.peaks_model) {
+    const pm = await (await fetchOk(m.peaks_model.file, 'the peak visibility model')).arrayBuffer();
+    await checkBytes(pm, m.peaks_model, m.peaks_model.file, 'the peak visibility model');
+    try {
+      peakSession = await ort.InferenceSession.create(new Uint8Array(pm), { executionProviders: ['wasm'] });
+    } catch (e) {
+      throw new AssetError(`the peak visibility model (${ASSETS}${m.peaks_model.file}) could not be loaded by onnxruntime-web: ${e.message || e}`);
+    }
+  }
   const texture = m.material && m.material.texture ? await loadTexture(m.material.texture) : null;
-  const app = new App(m, arrays, session, glsl, texture);
+  const app = new App(m, arrays, session, glsl, texture, peakSession);
   window.prt.app = app;
   bindUi(app);
   const params = new URLSearchParams(location.search);
@@ -434,6 +562,7 @@ window.prt = {
     if ('brdf' in s) app.brdf = typeof s.brdf === 'number' ? s.brdf : app.m.rpos.findIndex((r) => r.name === s.brdf);
     if (app.light < 0 || app.brdf < 0) throw new Error('unknown lighting or BRDF');
     if ('unshadowed' in s) app.unshadowed = s.unshadowed;
+    if ('peaks' in s) app.peaksOn = Boolean(s.peaks) && app.hasPeaks;
     if ('perPixel' in s) app.perPixel = s.perPixel;
     if ('tonemap' in s) app.exposure = s.tonemap;
     if ('syncGpu' in s) app.syncGpu = s.syncGpu;
@@ -444,6 +573,20 @@ window.prt = {
   stats() { return { ...this.app.stats }; },
   readPixels() { return this.app.readPixels(); },
   async visibility(features, batch) { return Array.from(await this.app.runVisibility(Float32Array.from(features), batch)); },
+  // onnxruntime-web's peak visibility (B*V*P) of given inputs (flat arrays; skin row-major 4x4 per joint)
+  async peakVisibility(a) {
+    need(this.app.peakSession, 'the site has no peak visibility model');
+    return Array.from(await this.app.runPeaks(a.positions, a.normals, a.skin, a.directions, a.angular_radii, a.batch || 1));
+  },
+  // per-vertex radiance (V*3, before the base colour) of the last rendered step, or of given per-vertex inputs
+  // {positions (V*3), frames (V*9), visibility (V*NC), peakVisibility (V*4)} under the current settings
+  radiance(inputs) {
+    const app = this.app;
+    if (inputs) app.fillState(inputs.positions, inputs.frames, inputs.visibility, inputs.peakVisibility);
+    return Array.from(app.radiance());
+  },
+  activePeaks() { const pk = this.app.activePeaks(); return pk ? { directions: Array.from(this.app.peakDirs), angular_radii: pk.angular_radii } : null; },
+  skin() { return Array.from(this.app.poser.skin); },
   pose(clip, frame) {
     const app = this.app;
     const c = app.m.clips.findIndex((x) => x.name === clip);

@@ -3,7 +3,7 @@
 // This file is the document an engine programmer ports. It holds only functions (GLSL ES 3.00); the page's
 // vertex shader (shading.js) #defines ORDER, NC, NTERMS, NLOBES and PRT_GAUNT_PRODUCT (plus the optional
 // unrolled bodies), includes this file and per vertex calls prtLobesInFrame() then prtRadianceFused() (or
-// prtRadianceMatrix() with ?form=matrix), then prtToneMap().
+// prtRadianceMatrix() with ?form=matrix), adds prtPeakRadiance() when the lighting has peaks, then prtToneMap().
 // It computes exactly what prt_torch.shade.shade_rpo(v, rotate_lobes_to_frames(...), wo, rpo) and the
 // exported shading.onnx compute (tests/web checks the page's frame against the Python player's).
 //
@@ -168,6 +168,69 @@ vec3 prtRadianceMatrix(float v[NC], vec3 l[NC], vec3 wo, highp sampler2D rpoM, f
   return tint * L;
 }
 #endif
+
+// -- peak lights (issue 27): the sun and other small bright discs, shaded apart from the SH path ---------------------
+//   Per peak p (at most PRT_MAX_PEAKS): unit world direction s_p (towards the light), RGB power E_p (radiance x the
+//   disc's solid angle) and the disc's visible fraction V_p in [0, 1] per vertex (the run's peaks.onnx in
+//   onnxruntime-web; its angular radius enters there). Reflected radiance toward wo (local), with the analytic BRDF
+//   the RPO was built from (prt_torch.brdf.analytic, tint the RPO's):
+//       L_peaks(wo) = tint * sum_p E_p s(wi_p, wo) max(wi_p.z, 0) V_p,   wi_p = F s_p
+//   what prt_torch.brdf.direct.peak_radiance computes. With peaks on, the SH path shades the residual lighting (the
+//   lighting without its peaks) and the two add.
+#define PRT_MAX_PEAKS 4
+#define PRT_BRDF_LAMBERT 0
+#define PRT_BRDF_PHONG 1
+#define PRT_BRDF_BLINN 2
+#define PRT_BRDF_COOK_TORRANCE 3
+#define PRT_BRDF_WARD 4
+
+// the BRDF shape s(wi, wo) (no tint) of prt_torch.brdf.analytic, local unit directions; 0 below either horizon.
+// prm = (kd, ks, p1, p2): Lambert (1, 0, 0, 0) [shape 1/pi]; Phong (kd, ks, exponent, 0); Blinn-Phong (kd, ks,
+// exponent, norm); Cook-Torrance (kd, ks, alpha = roughness^2, f0); Ward (kd, ks, alpha, 0).
+float prtBrdfShape(int kind, vec4 prm, vec3 wi, vec3 wo) {
+  if (wi.z <= 0.0 || wo.z <= 0.0) return 0.0;
+  float diffuse = prm.x / PRT_PI;
+  if (kind == PRT_BRDF_PHONG) {  // normalised modified Phong: mirror of wo about the normal
+    float c = max(-wi.x * wo.x - wi.y * wo.y + wi.z * wo.z, 0.0);
+    return diffuse + prm.y * (prm.z + 2.0) / (2.0 * PRT_PI) * pow(c, prm.z);
+  }
+  vec3 h = wi + wo;
+  float hl = length(h);
+  h = hl > 0.0 ? h / hl : h;
+  if (kind == PRT_BRDF_BLINN) {
+    return diffuse + prm.y * prm.w * pow(max(h.z, 0.0), prm.z);
+  }
+  if (kind == PRT_BRDF_COOK_TORRANCE) {  // GGX D, separable Smith G, Schlick F
+    float a2 = prm.z * prm.z;
+    float ch = max(h.z, 0.0);
+    float dd = ch * ch * (a2 - 1.0) + 1.0;
+    float D = a2 / (PRT_PI * dd * dd);
+    float ci = wi.z, co = wo.z;
+    float G = 2.0 * ci / (ci + sqrt(a2 + (1.0 - a2) * ci * ci)) * 2.0 * co / (co + sqrt(a2 + (1.0 - a2) * co * co));
+    float F = prm.w + (1.0 - prm.w) * pow(1.0 - clamp(dot(wi, h), 0.0, 1.0), 5.0);
+    return diffuse + prm.y * D * G * F / (4.0 * ci * co);
+  }
+  if (kind == PRT_BRDF_WARD) {
+    float c2 = max(h.z, 1e-12);
+    c2 *= c2;
+    float a2 = prm.z * prm.z;
+    return diffuse + prm.y * exp(-((1.0 - c2) / c2) / a2) / (4.0 * PRT_PI * a2 * sqrt(wi.z * wo.z));
+  }
+  return diffuse;  // Lambert: kd = 1
+}
+
+// L_peaks(wo) above: frame rows (t, b, n), peak directions / powers, per-vertex visibility vis[p] (nPeaks <= 4)
+vec3 prtPeakRadiance(vec3 t, vec3 b, vec3 n, vec3 wo, int nPeaks, vec3 peakDir[PRT_MAX_PEAKS],
+                     vec3 peakPower[PRT_MAX_PEAKS], vec4 vis, int kind, vec4 prm, vec3 tint) {
+  vec3 L = vec3(0.0);
+  for (int p = 0; p < PRT_MAX_PEAKS; p++) {
+    if (p >= nPeaks) break;
+    vec3 s = peakDir[p];
+    vec3 wi = vec3(dot(t, s), dot(b, s), dot(n, s));
+    L += peakPower[p] * (prtBrdfShape(kind, prm, wi, wo) * max(wi.z, 0.0) * vis[p]);
+  }
+  return tint * L;
+}
 
 // the player's tone map (prt_torch.player.tonemap): exposure, Reinhard's extended curve, gamma; radiance < 0 -> 0
 vec3 prtToneMap(vec3 radiance, float exposure, float white, float gamma) {

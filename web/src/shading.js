@@ -1,13 +1,21 @@
 // The three.js material that runs prt_shading.glsl per vertex (RawShaderMaterial, GLSL ES 3.00).
 //
-// Per-frame state: one RGBA32F texture, STATE_TEXELS(C) texels per vertex - position, t, b, n (xyz each), then
-// the NC visibility coefficients packed 4 per texel. Vertex v's texel p sits at (x, y) = ((v % R) P + p, v / R).
+// Per-frame state: one RGBA32F texture, P = 5 + ceil(NC / 4) texels per vertex - position, t, b, n (xyz each), the
+// visible fractions of the (up to 4) peak lights, then the NC visibility coefficients packed 4 per texel. Vertex v's
+// texel p sits at (x, y) = ((v % R) P + p, v / R).
+//
+// makeMaterial(..., {radianceOut: true}) is the same vertex shader drawing vertex v as one point at pixel
+// (v % RADIANCE_WIDTH, v / RADIANCE_WIDTH) of a float target, its radiance before the base colour (window.prt.radiance).
 import * as THREE from 'three';
 
 export const TEXTURE_WIDTH = 4096;
+export const RADIANCE_WIDTH = 1024;
+export const PEAK_TEXEL = 4;
+export const VIS_TEXEL = 5;
+export const MAX_PEAKS = 4;
 
 export function stateLayout(nVertices, nCoeffs) {
-  const P = 4 + Math.ceil(nCoeffs / 4);
+  const P = VIS_TEXEL + Math.ceil(nCoeffs / 4);
   const R = Math.floor(TEXTURE_WIDTH / P);
   const rows = Math.ceil(nVertices / R);
   return { P, R, width: R * P, height: rows };
@@ -33,6 +41,12 @@ uniform float u_white;
 uniform float u_gamma;
 uniform bool u_perPixel;
 uniform vec3 u_baseFactor;
+uniform int u_nPeaks;
+uniform vec3 u_peakDir[PRT_MAX_PEAKS];
+uniform vec3 u_peakPower[PRT_MAX_PEAKS];
+uniform int u_brdfKind;
+uniform vec4 u_brdfParams;
+uniform int u_radianceRows;
 in vec3 position;
 in float a_vid;
 in vec2 a_uv;
@@ -53,7 +67,7 @@ void main() {
   vec3 n = stateTexel(vid, 3).xyz;
   float vis[NC];
   for (int q = 0; q < (NC + 3) / 4; q++) {
-    vec4 c = stateTexel(vid, 4 + q);
+    vec4 c = stateTexel(vid, VIS_TEXEL + q);
     int j = 4 * q;
     vis[j] = c.x;
     if (j + 1 < NC) vis[j + 1] = c.y;
@@ -70,15 +84,29 @@ void main() {
   vec3 wo = vec3(dot(t, view), dot(b, view), dot(n, view));
   vec3 base = u_perPixel ? u_baseFactor : a_base;
 #ifdef PRT_MATRIX_FORM
-  vec3 L = prtRadianceMatrix(vis, l, wo, u_rpoM, u_rpoW, u_tint) * base;
+  vec3 L = prtRadianceMatrix(vis, l, wo, u_rpoM, u_rpoW, u_tint);
 #else
-  vec3 L = prtRadianceFused(vis, l, wo, u_rpoU, u_rpoW, u_tint) * base;
+  vec3 L = prtRadianceFused(vis, l, wo, u_rpoU, u_rpoW, u_tint);
 #endif
+  if (u_nPeaks > 0) {
+    vec4 peakVis = u_unshadowed ? vec4(1.0) : stateTexel(vid, PEAK_TEXEL);
+    L += prtPeakRadiance(t, b, n, wo, u_nPeaks, u_peakDir, u_peakPower, peakVis, u_brdfKind, u_brdfParams, u_tint);
+  }
+#ifdef PRT_RADIANCE_OUT
+  v_radiance = L;  // before the base colour; one point per vertex
+  v_color = vec3(0.0);
+  v_uv = a_uv;
+  gl_PointSize = 1.0;
+  gl_Position = vec4((float(vid % RADIANCE_WIDTH) + 0.5) / float(RADIANCE_WIDTH) * 2.0 - 1.0,
+                     (float(vid / RADIANCE_WIDTH) + 0.5) / float(u_radianceRows) * 2.0 - 1.0, 0.0, 1.0);
+#else
+  L *= base;
   v_radiance = L;
   v_uv = a_uv;
   // 8-bit colours per vertex, interpolated over the triangle: what the Python player's renderer shows
   v_color = floor(prtToneMap(L, u_exposure, u_white, u_gamma) * 255.0 + 0.5) / 255.0;
   gl_Position = projectionMatrix * modelViewMatrix * vec4(pos, 1.0);
+#endif
 }
 `;
 
@@ -94,6 +122,10 @@ in vec2 v_uv;
 out vec4 fragColor;
 
 void main() {
+#ifdef PRT_RADIANCE_OUT
+  fragColor = vec4(v_radiance, 1.0);
+  return;
+#endif
   if (u_perPixel) {
     vec3 base = texture(u_baseTex, v_uv).rgb;  // linear: the texture is sRGB-decoded by the sampler
     fragColor = vec4(prtToneMap(v_radiance * base, u_exposure, u_white, u_gamma), 1.0);
@@ -147,15 +179,17 @@ export function lobeAccumUnrolled(order) {
   return st.join(' ');
 }
 
-export function makeMaterial(glsl, sizes, layout, gaunt, matrixForm = false) {
+export function makeMaterial(glsl, sizes, layout, gaunt, matrixForm = false, options = {}) {
   const defines = PRECISION + `#define ORDER ${sizes.order}\n#define NC ${sizes.order * sizes.order}\n` +
     `#define NTERMS ${sizes.nTerms}\n#define NLOBES ${sizes.nLobes}\n` +
     `#define STATE_P ${layout.P}\n#define STATE_R ${layout.R}\n` +
+    `#define PEAK_TEXEL ${PEAK_TEXEL}\n#define VIS_TEXEL ${VIS_TEXEL}\n#define RADIANCE_WIDTH ${RADIANCE_WIDTH}\n` +
+    (options.radianceOut ? '#define PRT_RADIANCE_OUT\n' : '') +
     `#define PRT_GAUNT_PRODUCT ${gauntProduct(gaunt)}\n` +
     `#define PRT_SH_BASIS_UNROLLED ${shBasisUnrolled(sizes.order)}\n` +
     `#define PRT_LOBE_ACCUM_UNROLLED ${lobeAccumUnrolled(sizes.order)}\n` + (matrixForm ? '#define PRT_MATRIX_FORM\n' : '');
   const nc = sizes.order * sizes.order;
-  const uniforms = {
+  const uniforms = options.uniforms || {
     u_state: { value: null },
     u_rpoM: { value: null },
     u_rpoW: { value: new Float32Array(sizes.nTerms * nc) },
@@ -172,6 +206,12 @@ export function makeMaterial(glsl, sizes, layout, gaunt, matrixForm = false) {
     u_perPixel: { value: false },
     u_baseFactor: { value: new THREE.Vector3(1, 1, 1) },
     u_baseTex: { value: null },
+    u_nPeaks: { value: 0 },
+    u_peakDir: { value: Array.from({ length: MAX_PEAKS }, () => new THREE.Vector3(0, 0, 1)) },
+    u_peakPower: { value: Array.from({ length: MAX_PEAKS }, () => new THREE.Vector3()) },
+    u_brdfKind: { value: 0 },
+    u_brdfParams: { value: new THREE.Vector4(1, 0, 0, 0) },
+    u_radianceRows: { value: 1 },
   };
   return new THREE.RawShaderMaterial({
     glslVersion: THREE.GLSL3,
