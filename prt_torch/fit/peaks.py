@@ -33,7 +33,7 @@ from prt_torch.errors import PrtError, check
 class PeakFitSettings:
     """The fit's settings (``train.peaks``; module doc)."""
 
-    steps: int = 300
+    steps: int = 400
     frames_per_step: int = 8
     vertices_per_step: int = 4096
     learning_rate: float = 0.02
