@@ -198,7 +198,7 @@ def test_overlap_mode_equals_fused_and_times_its_steps(tiny_run: Path) -> None:
             # normalisation (vertex_frames_soa), so the two frames agree within 2 gamma_(J+40) / FALLBACK_BELOW
             np.testing.assert_allclose(st_o.frames, st_f.frames, rtol=0,
                                        atol=two_path_atol(n_joints + 40, 1 / FALLBACK_BELOW))
-        assert {k: len(v) for k, v in timer.steps.items()} == {"pose": 3, "visibility": 3, "shading": 3}
+        assert {k: len(v) for k, v in timer.steps.items()} == {"pose": 3, "visibility": 3, "shading": 3, "peaks": 3}
         _, batch = over.compute(loc)
         singles = np.concatenate([fused.compute(loc[i:i + 1])[1] for i in range(3)])
         np.testing.assert_allclose(batch, singles, rtol=1e-5, atol=1e-5 * np.abs(singles).max())
