@@ -12,7 +12,18 @@ Per frame (:meth:`ScenePlayer.compute`), for every character ``k`` (each through
 
 and for the ground: SHEXP of ALL spheres at the ground vertices (ground frame = world), shaded by the primary
 player's ``shade`` with the run's diffuse RPO (``lambert``) times the ground albedo: the same shading graph,
-lighting and view directions, the ground's vertices packed into batches of the graph's vertex count. One tone
+lighting and view directions, the ground's vertices packed into batches of the graph's vertex count.
+
+**Peak lights** (issue 27; ``peaks``, ``peak_kind`` as :class:`Player`'s): each Player's ``lighting`` is then the
+RESIDUAL of the light split (the SH path above shades it: the sun is not counted twice) and the peaks add their
+direct term with soft shadows (:mod:`prt_torch.scene.peaks`):
+
+* character ``k``: its own peak visibility (``Player.peak_source``: learned blockers, blocker spheres) times the
+  fraction the OTHER characters' spheres of the same kind leave of each disc, times the share of the disc above
+  the floor (with a floor); ``exact``: Embree against every posed character and the floor at once. Shaded by
+  ``Player.shade_peaks`` (the run's analytic BRDF) and added to the residual radiance;
+* floor: ``albedo / pi * E_p * max(l_p . z, 0) * V_p`` with ``V_p`` the floor vertices' visibility under EVERY
+  character's posed spheres together (``exact``: Embree against the merged posed meshes). One tone
 map for everything (``auto_tonemap`` of the first frame's radiance of all meshes; ``Player.colors``), one
 :class:`~prt_torch.player.render.MeshRenderer` with one mesh per character plus the ground, the camera of
 :func:`~prt_torch.player.player.camera_eye` around the placed characters' rest meshes.
@@ -58,6 +69,21 @@ def blockers_path(run: RunDir) -> Path | None:
     return p if p.is_file() else None
 
 
+def compiled_kernel(positions: np.ndarray, normals: np.ndarray, centers: np.ndarray, radii: np.ndarray,
+                    directions: np.ndarray, angular_radii: np.ndarray) -> np.ndarray:
+    """The player's compiled cone-sphere kernel (:func:`prt_torch.player.peaks.sphere_visibility_soa`, the same
+    numbers as :func:`prt_torch.blockers.cones.sphere_peak_visibility`) with the latter's signature, ``(V, 3)`` or
+    ``(B, V, 3)`` receivers (a :data:`prt_torch.scene.peaks.Kernel`)."""
+    from prt_torch.player.peaks import sphere_visibility_soa
+
+    one = np.ndim(positions) == 2
+    pos = np.asarray(positions)[None] if one else np.asarray(positions)
+    nrm = np.asarray(normals)[None] if one else np.asarray(normals)
+    cen = np.asarray(centers)[None] if one else np.asarray(centers)
+    out = sphere_visibility_soa(pos.transpose(0, 2, 1), nrm.transpose(0, 2, 1), cen, radii, directions, angular_radii)
+    return out[0] if one else out
+
+
 def load_spheres(run: RunDir) -> Any:
     """The run's :class:`prt_torch.blockers.SphereSet` (one-line error when the export has none)."""
     from prt_torch.blockers import SphereSet
@@ -71,13 +97,16 @@ def load_spheres(run: RunDir) -> Any:
 class SceneFrame:
     """One computed scene frame: per character ``states`` (placed :class:`PoseBatch`, B = 1) and ``radiance``
     ``(1, V_k, 3)``; ``visibility`` the in-scene ``(1, V_k, C)``; the ground's ``ground_radiance (G, 3)`` and
-    ``ground_visibility (G, C)`` (``None`` without a floor)."""
+    ``ground_visibility (G, C)`` (``None`` without a floor); with peak lights, per character ``peak_visibility
+    (1, V_k, P)`` (in-scene) and the floor's ``ground_peak_visibility (G, P)`` (``None`` without peaks or floor)."""
 
     states: list[PoseBatch]
     radiance: list[np.ndarray]
     visibility: list[np.ndarray]
     ground_radiance: np.ndarray | None
     ground_visibility: np.ndarray | None
+    peak_visibility: list[np.ndarray] | None = None
+    ground_peak_visibility: np.ndarray | None = None
 
 
 class ScenePlayer:
@@ -90,13 +119,16 @@ class ScenePlayer:
         clip: the clip of entries without one (a name or a :class:`Clip`); ``None``: their ``clip`` must be set.
         fps: the scene's frame rate (default: the primary character's clip rate).
         env, brdf, threads, window_size: as :class:`Player` (one Player per distinct run).
+        peaks, peak_kind: the peak lights and their visibility, as :class:`Player` (module docstring).
     """
 
     def __init__(self, run_dir: str | os.PathLike[str] | RunDir, scene: SceneConfig | None = None,
                  ground: bool = False, clip: str | Clip | None = None, fps: float | None = None,
                  env: str | os.PathLike[str] | None = None, brdf: str | None = None, threads: int = 2,
-                 window_size: tuple[int, int] = (480, 640)) -> None:
+                 window_size: tuple[int, int] = (480, 640), peaks: int | str | None = None,
+                 peak_kind: str | None = None) -> None:
         self.run = RunDir.of(run_dir)
+        self._peak_args = {"peaks": peaks, "peak_kind": peak_kind}
         if scene is None:
             scene = run_scene(self.run) or SceneConfig()
         if ground and scene.ground is None:
@@ -117,7 +149,7 @@ class ScenePlayer:
         key = (self.run.path if run_path is None else Path(run_path)).resolve()
         if key not in self.players:
             self.players[key] = Player(key, env=env, brdf=brdf, graph="split", threads=threads,
-                                       window_size=self.window_size)
+                                       window_size=self.window_size, **self._peak_args)
         return self.players[key]
 
     def _build(self, clip: str | Clip | None, fps: float | None, env: Any, brdf: str | None, threads: int) -> None:
@@ -164,6 +196,23 @@ class ScenePlayer:
         self._ground_rpo = self.primary.bundle.rpo(GROUND_BRDF) if GROUND_BRDF in self.primary.bundle.brdf_names \
             else self.primary.rpo
         self.exposure: Any = None
+        self._build_peaks()
+
+    def _build_peaks(self) -> None:
+        """The peak lights (the primary player's split; every player has the same lighting) and, per character, the
+        occluders of its peaks as others and the floor see them (module docstring). A run without peak blockers
+        (``Player.peak_source`` ``None``) casts no peak shadow on anything."""
+        pk = self.primary.peaks
+        self.n_peaks = len(pk.peaks)
+        self.peak_kind: str | None = None
+        self.peak_spheres: list[Any] = []
+        if self.n_peaks == 0:
+            return
+        kinds = {None if p.peak_source is None else p.peak_source.kind for p in self.actor_players}
+        check(len(kinds) == 1, f"scene: the characters' peak visibilities differ: {sorted(map(str, kinds))}")
+        self.peak_kind = kinds.pop()
+        if self.peak_kind in ("spheres", "learned"):
+            self.peak_spheres = [p.peak_source.spheres for p in self.actor_players]
 
     @property
     def eye(self) -> np.ndarray:
@@ -172,6 +221,8 @@ class ScenePlayer:
     # -- per frame -------------------------------------------------------------------------------------------
     def compute(self, frame: int, timer: FrameTimer | None = None) -> SceneFrame:
         """Everything of scene frame ``frame`` (module docstring)."""
+        from prt_torch.blockers import pose_spheres
+
         t0 = time.perf_counter()
         idx = np.array([int(frame)])
         states, selfvis, centers, radii = [], [], [], []
@@ -181,14 +232,13 @@ class ScenePlayer:
             states.append(st)
             selfvis.append(p.visibility(st.features, checked=False))
             if self.shexp is not None:
-                from prt_torch.blockers import pose_spheres
-
                 centers.append(pose_spheres(a.spheres, st.skin))  # (1, S_k, 3), the Poser's skinning matrices
                 radii.append(np.asarray(a.spheres.radius, dtype=np.float32))
         if len(self.actors) > 1:
             check_separated([c[0] for c in centers], radii, [a.name for a in self.actors], frame)
+        occ = self._peak_occluders(states)
         t1 = time.perf_counter()
-        vis, rad = [], []
+        vis, rad, pvis = [], [], []
         for k, (st, p) in enumerate(zip(states, self.actor_players, strict=True)):
             frames = st.frames_vx33()
             others = None
@@ -198,9 +248,14 @@ class ScenePlayer:
                 others = self.shexp(np.ascontiguousarray(st.positions.transpose(0, 2, 1)), frames, oc, orad)
             v = self.composers[k].in_scene(selfvis[k], frames, ground=self.ground is not None, others=others)
             vis.append(v)
-            rad.append(p.shade(st, visibility=v, checked=False))
+            r = p.shade(st, visibility=v, checked=False)
+            if self.n_peaks:
+                pv = self.character_peak_visibility(k, st, occ)
+                pvis.append(pv)
+                r = r + p.shade_peaks(st, pv)
+            rad.append(r)
         t2 = time.perf_counter()
-        g_rad = g_vis = None
+        g_rad = g_vis = g_pvis = None
         if self.ground is not None:
             g = self.ground
             allc = np.concatenate(centers, axis=1)
@@ -208,11 +263,92 @@ class ScenePlayer:
             allc, allr = spheres_above(allc, allr, g.height)
             g_vis = self.shexp(g.vertices[None], g.frames((1,)), allc, allr)[0]
             g_rad = self.shade_ground(g_vis)
+            if self.n_peaks:
+                g_pvis = self.floor_peak_visibility(occ)
+                g_rad = g_rad + self.shade_ground_peaks(g_pvis)
         if timer is not None:
             timer.add("pose", t1 - t0)
             timer.add("characters", t2 - t1)
             timer.add("ground", time.perf_counter() - t2)
-        return SceneFrame(states, rad, vis, g_rad, g_vis)
+        return SceneFrame(states, rad, vis, g_rad, g_vis, pvis if self.n_peaks else None, g_pvis)
+
+    # -- peak lights -----------------------------------------------------------------------------------------
+    def _peak_geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(directions (P, 3), angular radii (P,), powers (P, 3))`` of the primary player's peaks, the directions
+        turned about z by its ``light_angle`` (``Player.rotate_light``), as it shades them."""
+        p = self.primary
+        c, s = np.cos(p.light_angle), np.sin(p.light_angle)
+        rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return p.peaks.directions @ rz.T, p.peaks.angular_radii, p.peaks.powers
+
+    def _peak_occluders(self, states: list[PoseBatch]) -> list[Any]:
+        """Per character what occludes the peaks for the others and the floor: ``(centres (1, S_k, 3), radii
+        (S_k,))`` of its posed peak spheres, or (``exact``) its posed mesh ``(vertices (V_k, 3), faces)``; ``[]``
+        without peaks."""
+        from prt_torch.blockers import pose_spheres
+
+        if not self.n_peaks or self.peak_kind is None or (len(self.actors) == 1 and self.ground is None):
+            return []
+        if self.peak_kind == "exact":
+            return [(st.positions_vx3(0), np.asarray(a.character.faces)) for a, st in zip(self.actors, states,
+                                                                                          strict=True)]
+        return [(pose_spheres(s, st.skin), np.asarray(s.radius, dtype=np.float32))
+                for s, st in zip(self.peak_spheres, states, strict=True)]
+
+    def character_peak_visibility(self, k: int, state: PoseBatch, occ: list[Any]) -> np.ndarray:
+        """``(1, V_k, P)`` in-scene peak visibility of character ``k`` (module docstring): its own
+        (``Player.peak_source``) x the other characters' sphere occlusion x the share above the floor; ``exact``:
+        Embree against every posed character and the floor."""
+        from prt_torch.scene.peaks import above_floor_share, others_peak_visibility
+
+        p = self.actor_players[k]
+        d, a, _ = self._peak_geometry()
+        pos = np.ascontiguousarray(state.positions.transpose(0, 2, 1))  # (1, V, 3)
+        nrm = np.ascontiguousarray(state.normals.transpose(0, 2, 1))
+        if self.peak_kind == "exact" and (len(self.actors) > 1 or self.ground is not None):
+            from prt_torch.bake.embree import RayScene
+            from prt_torch.bake.peaks import exact_peak_visibility
+            from prt_torch.scene.truth import merged_mesh
+
+            meshes = occ + ([(self.ground.vertices, self.ground.faces)] if self.ground is not None else [])
+            src = p.peak_source
+            v = exact_peak_visibility(pos[0], nrm[0], d, a, src.offset, scene=RayScene(*merged_mesh(meshes)),
+                                      side=src.side)
+            return v[None]
+        v = p.peak_visibility(state)  # its own (Player.peak_source; no blockers: the horizon share only)
+        if len(self.actors) > 1 and occ:
+            oc = np.concatenate([c for j, (c, _) in enumerate(occ) if j != k], axis=1)
+            orad = np.concatenate([r for j, (_, r) in enumerate(occ) if j != k])
+            v = v * others_peak_visibility(pos, oc, orad, d, a, kernel=compiled_kernel)
+        if self.ground is not None:
+            v = v * above_floor_share(d, a)
+        return v
+
+    def floor_peak_visibility(self, occ: list[Any]) -> np.ndarray:
+        """``(G, P)`` peak visibility of the floor under every character (module docstring)."""
+        from prt_torch.scene.peaks import floor_exact_peak_visibility, floor_peak_visibility
+
+        g = self.ground
+        assert g is not None
+        d, a, _ = self._peak_geometry()
+        if not occ:  # no peak blockers: no shadow (the floor faces up: the share of each disc above the horizon)
+            from prt_torch.scene.peaks import above_floor_share
+
+            return np.broadcast_to(above_floor_share(d, a), (g.n_vertices, len(a))).copy()
+        if self.peak_kind == "exact":
+            src = self.primary.peak_source
+            return floor_exact_peak_visibility(g.vertices, occ, d, a, src.offset, side=src.side)
+        c = np.concatenate([c[0] for c, _ in occ])
+        r = np.concatenate([r for _, r in occ])
+        return floor_peak_visibility(g.vertices, c, r, d, a, kernel=compiled_kernel)
+
+    def shade_ground_peaks(self, visibility: np.ndarray) -> np.ndarray:
+        """``(G, 3)`` the floor's peak radiance for ``visibility (G, P)``: Lambert, albedo / pi x E x cos x V."""
+        from prt_torch.scene.peaks import floor_peak_radiance
+
+        assert self.ground is not None
+        d, _, e = self._peak_geometry()
+        return floor_peak_radiance(self.ground.albedo, d, e, visibility)
 
     def shade_ground(self, visibility: np.ndarray) -> np.ndarray:
         """``(G, 3)`` radiance of the ground with ``visibility (G, C)`` (ground frame): the primary player's
