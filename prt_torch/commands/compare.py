@@ -26,6 +26,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--light sun: the sun's half-angle in degrees (default 2)")
     parser.add_argument("--sun-power", type=float, default=None,
                         help="--light sun: the sun's power, irradiance on a facing surface (default 8: the player's)")
+    parser.add_argument("--peaks", default="auto",
+                        help="auto|0|K: split the light into up to K peak lights (suns) + the residual; every "
+                             "visibility method gains <method>+peaks_<kind> rows (default auto: the sky's or --light "
+                             "sun's sun, a map's detected peaks; 0: no split)")
+    parser.add_argument("--peak-kinds", default=None,
+                        help="comma-separated peak visibilities of the +peaks rows, each for every visibility method "
+                             "(exact, spheres, learned; default: spheres and learned where the run has them, plus "
+                             "exact for sh_truth)")
     parser.add_argument("--image-frames", type=int, default=8, help="frames rendered for image PSNR (default 8)")
     parser.add_argument("--reference-frames", type=int, default=4,
                         help="frames of the Monte-Carlo reference (default 4; 0 disables)")
@@ -68,13 +76,23 @@ def run(args: argparse.Namespace) -> int:
         limits.check_float(args.sun_power, "--sun-power", 0.0, 1e6, lo_open=True)
     if args.light != "sun" and (args.sun_size is not None or args.sun_power is not None):
         raise PrtError("--sun-size and --sun-power need --light sun")
+    from prt_torch.player.peaks import PEAK_KINDS, check_peaks_arg
+
+    peaks = check_peaks_arg(args.peaks)
+    kinds = V.names(args.peak_kinds, "--peak-kinds", PEAK_KINDS, what="peak kind") \
+        if args.peak_kinds is not None else None
+    if kinds is not None and peaks == 0:
+        raise PrtError("--peak-kinds needs peaks (--peaks auto or K >= 1), got --peaks 0")
+    if args.light == "smooth" and peaks not in ("auto", 0):
+        raise PrtError(f"--peaks {peaks}: --light smooth has no peak light (use --light sky or sun)")
     V.input_dir(args.run, "run directory")
     console = Console(stderr=True)
     result = run_compare(args.run, methods=methods, clip=args.clip, max_frames=args.frames, env=args.env,
                          image_frames=args.image_frames, reference_frames=args.reference_frames,
                          reference_rays=args.reference_rays, threads=args.threads, log=console.log,
                          progress=not args.json, motion=args.motion, motion_fps=args.motion_fps,
-                         light=args.light, sun_size=args.sun_size, sun_power=args.sun_power)
+                         light=args.light, sun_size=args.sun_size, sun_power=args.sun_power, peaks=peaks,
+                         peak_kinds=kinds)
     if args.json:
         print(json.dumps(json.loads(json.dumps(result, default=float)), indent=2))
         return 0

@@ -21,6 +21,28 @@ References:
   lighting, analytic BRDFs, Embree rays) on a few frames (the strip frame + evenly spaced ones, default 4):
   SH truncation, the ZH-lobe fit and the BRDF factorisation count too. Figures under ``vs_reference``.
 
+**Peak lights** (issue 27, ``--peaks auto|0|K``, :func:`prt_torch.compare.reference.compare_lights`): the light is
+split into up to ``K`` peak lights (discs: the procedural sky's sun, a map's detected suns by
+:func:`prt_torch.player.peaks.load_peak_lighting`, ``--light sun``'s disk; ``--light smooth`` has none) and the
+residual. Every method keeps its row (the WHOLE lighting on the SH path, as before) and every visibility method gains
+``<method>+peaks_<kind>`` rows: its visibility under the RESIDUAL on the same shipping path, plus per peak
+``E f_r(l, v) max(n . l, 0) V_kind`` with the analytic BRDF of each RPO (:func:`prt_torch.brdf.direct.peak_radiance`;
+the character's own material: its Cook-Torrance), ``V_kind`` one of :data:`prt_torch.player.peaks.PEAK_KINDS`
+(``exact`` Embree disc rays, ``spheres`` the run's blocker spheres, ``learned`` its learned peak blockers), timed per
+frame in the same round-robin as the methods. Default kinds (``--peak-kinds``): ``spheres`` and ``learned`` where the
+run has them for every visibility method, ``exact`` for ``sh_truth`` only; ``sh_truth+peaks_exact`` (the ceiling) is
+always a row with peaks and is the TRUTH of every ``+peaks`` row's top-level figures (the reference is the same for
+every row). A ``+peaks`` row has its method's ``vis_rel_err``, ``ms_per_frame`` = the method's + the kind's
+(``peak_ms_per_frame``), ``bytes`` = the method's + the kind's (``peak_bytes``), ``base_method``, ``peak_kind``,
+``truth``. Radiance methods (``output == "radiance"``: ``sg_vct``, ``s001``, ``learned_transfer``, ...) get no
+``+peaks`` rows (their lighting is their own). The residual is shaded WITHOUT the player's sinc window (measured on
+the demo run: the window only blurs the smooth residual; ``run_compare(residual_window=True)`` restores it).
+
+**The silhouette rule** (one rule for every row and the reference, :func:`prt_torch.compare.reference.
+silhouette_mask`): a vertex whose normal faces away from the camera (``n . (eye - p) <= 0``) has radiance 0 in every
+row, as in the Monte-Carlo reference (its analytic BRDFs vanish there; an RPO's view factor extrapolates below the
+horizon). Such vertices are seen only on the silhouette rim, interpolated into front-facing triangles.
+
 ``RUN/compare/compare.json`` (stable; later work adds keys):
 
 =====================================  ==========================================================
@@ -34,6 +56,11 @@ key                                    meaning
                                        the sky without its sun), ``sun`` (that plus a small bright disk:
                                        ``--sun-size`` degrees, ``--sun-power``); every method and the reference
                                        see the same light (SH methods its SH, ``sg_vct`` the full-resolution map)
+``peaks``                              the peak lights ``[{direction, angular_radius_deg, radiance}]``
+                                       (:meth:`prt_torch.sg.split.PeakLight.to_dict`; ``[]``: none, no ``+peaks``
+                                       rows), ``peak_kinds`` the kinds timed, ``residual_lighting`` the +peaks
+                                       rows' lighting (``null`` without peaks)
+``silhouette``                         the silhouette rule (above)
 ``brdfs``                              the RPOs shaded (``["lambert", "phong"]``, plus ``"material"`` for a
                                        character with its own material: keys tagged ``material``)
 ``material``                           the character's material (``name``, ``base_color``, ``metallic``,
@@ -56,8 +83,14 @@ key                                    meaning
                                        character's own, with ``psnr_image_material``)
 ``methods.NAME.vs_reference``          the same keys against the Monte-Carlo reference (vertex figures over
                                        the vertices facing the camera: the analytic BRDF is 0 behind them)
+``methods.M+peaks_K``                  the +peaks rows (above): the same keys, vs ``sh_truth+peaks_exact`` at the
+                                       top level, plus ``base_method``, ``peak_kind``, ``truth``,
+                                       ``peak_ms_per_frame``, ``peak_bytes``
 ``reference``                          ``{frames, frame_indices, rays_per_estimate, estimates, lighting,
-                                       sampling, noise: {same radiance keys: estimate b vs a}, note}``
+                                       sampling, vertices, noise: {same radiance keys: estimate b vs a}, note}``;
+                                       its light is the split at full resolution: the residual (the sky's CIE sky +
+                                       ground, a map's residual pixels) + every peak as a disk light of the peak's
+                                       own angular radius (also under ``--peaks 0``: the ``auto`` split)
 ``ground``                             only when the run's scene has a floor (``RunDir.scene_json``, the demo's):
                                        ``{psnr_image, radiance_rel_rmse, vis_rel_err, psnr_vertex, vertices,
                                        ...}`` of the floor's SHEXP visibility vs whole-scene Embree truth
@@ -68,7 +101,8 @@ key                                    meaning
 =====================================  ==========================================================
 
 Files (:class:`prt_torch.rundir.RunDir` ``compare_*`` properties): ``compare.json``, ``table.md``,
-``index.html``, ``strip.png`` (truth | each method | reference, row 2: 4x |difference|, at the frame with the
+``index.html``, ``strip.png`` (truth | each method | the shipped learned kind's and ``sh_truth``'s best +peaks rows
+| reference, row 2: 4x |difference|, at the frame with the
 largest truth vs unshadowed radiance gap), ``psnr_vs_ms.png``, ``ground.png`` (with a floor), and
 ``<kind>.visibility.onnx`` for learned kinds that are not the exported one.
 """

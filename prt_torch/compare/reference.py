@@ -1,12 +1,14 @@
 """The ``reference``: the rendering integral per vertex by Monte-Carlo with Embree rays, no SH anywhere.
 
-``L(wo) = int_{H(n)} L_env(wi) V(wi) f(wi, wo) cos(theta_i) dwi + sum_sun E_sun V(s) f(s, wo) max(cos, 0)``
+``L(wo) = int_{H(n)} L_env(wi) V(wi) f(wi, wo) cos(theta_i) dwi + sum_disk int_disk L_d V(wi) f(wi, wo) cos dwi``
 
-* ``L_env``: the full-resolution radiance function of the lighting: for the player's procedural sky, the CIE
-  clear sky + ground of :func:`prt_torch.light.sources.sky_envmap` evaluated directly at each ray direction
-  (:func:`prt_torch.light.sources.cie_clear_sky`, with the colours the player's :func:`~prt_torch.light.sources.
-  sky_sh` call uses) and its sun as a delta light of power ``E_sun`` (the player's sun, half-angle 0.27 deg
-  treated as a point); for an HDR file, the nearest pixel of the map (no SH projection, no window).
+* ``L_env``: the full-resolution radiance function of the lighting, as its light split (:func:`split_reference`,
+  :func:`compare_lights`): the residual - for the player's procedural sky the CIE clear sky + ground of
+  :func:`prt_torch.light.sources.sky_envmap` evaluated directly at each ray direction (:func:`sky_radiance`, with the
+  colours the player's :func:`~prt_torch.light.sources.sky_sh` call uses), for an HDR file the nearest pixel of the
+  residual map (no SH projection, no window) - plus every peak light (the sky's sun, a map's detected suns, ``--light
+  sun``'s disk) as a uniform DISK light of the peak's own angular radius and radiance, sampled with its own rays
+  (``sum_disk`` above). Hemisphere rays alone would find a map's 6.8e-5 sr sun by chance.
 * ``f``: the analytic BRDF (:func:`prt_torch.brdf.rpo.builtin_brdf`, tint included), no factorisation.
 * ``V``: Embree occlusion from ``p + offset n`` (the bake's ray offset) against the posed mesh.
 * Sampling: a randomised spherical-Fibonacci hemisphere set of ``R`` directions about each vertex normal
@@ -45,10 +47,12 @@ class ReferenceLight:
     disks: list[tuple[np.ndarray, float, np.ndarray]] = field(default_factory=list)
 
 
-def sky_reference() -> ReferenceLight:
-    """The player's default lighting (``load_lighting(None, order)``) as a radiance function + the sun."""
+def sky_radiance() -> Callable[[np.ndarray], np.ndarray]:
+    """The player's procedural sky WITHOUT its sun as a radiance function ``(N, 3) -> (N, 3)`` (the image of
+    :func:`~prt_torch.light.sources.sky_envmap`, the CIE clear sky + ground of ``load_lighting(None, order)``,
+    evaluated at any direction: full resolution)."""
     from prt_torch.light.sources import cie_clear_sky, sky_sh
-    from prt_torch.player.lighting import DEFAULT_SUN_COLOR, DEFAULT_SUN_DIRECTION
+    from prt_torch.player.lighting import DEFAULT_SUN_DIRECTION
 
     defaults = {k: p.default for k, p in inspect.signature(sky_sh).parameters.items()}
     sky = np.asarray(defaults["sky_color"], dtype=np.float64)
@@ -56,19 +60,18 @@ def sky_reference() -> ReferenceLight:
     sun = np.asarray(DEFAULT_SUN_DIRECTION, dtype=np.float64)
     sun = sun / np.linalg.norm(sun)
 
-    def radiance(dirs: np.ndarray) -> np.ndarray:  # the image of sky_envmap, evaluated at any direction
+    def radiance(dirs: np.ndarray) -> np.ndarray:
         d = np.asarray(dirs, dtype=np.float64)
         return cie_clear_sky(d, sun)[..., None] * sky + (d[..., 2] <= 0)[..., None] * ground
 
-    deltas = [(sun, np.asarray(DEFAULT_SUN_COLOR, dtype=np.float64))] if sun[2] > 0 else []
-    return ReferenceLight(radiance, deltas, "procedural sky (CIE clear sky + ground, sun as a delta light)")
+    return radiance
 
 
-def envmap_reference(path: str | Path) -> ReferenceLight:
-    """An HDR environment map as a nearest-pixel radiance function (full resolution)."""
-    from prt_torch.light.envmap import latlong_pixel_coords, load_envmap, probe_pixel_coords
+def envmap_radiance(env: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """An :class:`~prt_torch.light.envmap.EnvMap` as a nearest-pixel radiance function ``(N, 3) -> (N, 3)`` (full
+    resolution, no SH projection, no window)."""
+    from prt_torch.light.envmap import latlong_pixel_coords, probe_pixel_coords
 
-    env = load_envmap(path)
     img = env.image.astype(np.float64)
     h, w = env.shape
     coords = latlong_pixel_coords if env.layout == "latlong" else probe_pixel_coords
@@ -79,15 +82,33 @@ def envmap_reference(path: str | Path) -> ReferenceLight:
         row = np.clip((uv[..., 1] * h).astype(np.int64), 0, h - 1)
         return img[row, col]
 
-    return ReferenceLight(radiance, [], f"{path} (nearest pixel, {w}x{h})")
+    return radiance
 
 
-def reference_light(env: str | Path | None) -> ReferenceLight:
-    """:func:`sky_reference` for ``None`` (the player's default), else :func:`envmap_reference`."""
-    if env is None or str(env) in ("", "sky"):
-        return sky_reference()
-    check(Path(env).is_file(), f"environment map not found: {env}")
-    return envmap_reference(env)
+def envmap_reference(path: str | Path) -> ReferenceLight:
+    """An HDR environment map as a nearest-pixel radiance function (full resolution)."""
+    from prt_torch.light.envmap import load_envmap
+
+    env = load_envmap(path)
+    h, w = env.shape
+    return ReferenceLight(envmap_radiance(env), [], f"{path} (nearest pixel, {w}x{h})")
+
+
+def split_reference(split: Any, env: str | Path | None) -> ReferenceLight:
+    """The lighting of ``prt compare --light sky`` at full resolution as its light split (:class:`~prt_torch.sg.
+    split.LightSplit` of ``env``, :func:`prt_torch.player.peaks.load_split`): the residual's radiance function (the
+    procedural sky: :func:`sky_radiance`, the CIE sky + ground without the sun; a map: the residual map's nearest
+    pixel, :func:`envmap_radiance`) plus every peak as a uniform disk light of the SAME angular radius and radiance
+    (sampled with its own rays, :func:`reference_radiance` ``disk_rays``) instead of a delta or a few map pixels
+    that hemisphere rays would hit by chance. Peaks + residual are the map (the split conserves energy)."""
+    from prt_torch.player.peaks import is_sky
+
+    base = sky_radiance() if is_sky(env) else envmap_radiance(split.residual)
+    disks = [(p.direction, float(p.angular_radius), p.radiance) for p in split.peaks]
+    what = "procedural sky (CIE clear sky + ground)" if is_sky(env) else \
+        f"{env} residual (nearest pixel, {split.residual.shape[1]}x{split.residual.shape[0]})"
+    sizes = ", ".join(f"{math.degrees(p.angular_radius):.3g}" for p in split.peaks)
+    return ReferenceLight(base, [], f"{what} + {len(disks)} peak disk(s) (half-angle {sizes or '-'} deg)", disks)
 
 
 def reference_radiance(positions: np.ndarray, frames: np.ndarray, faces: np.ndarray, eye: np.ndarray,
@@ -238,7 +259,7 @@ class LightSpec:
 def light_spec(light: str, env: str | Path | None = None, sun_size_deg: float = SUN_HALF_ANGLE_DEG,
                sun_power: float | tuple[float, float, float] | None = None) -> LightSpec:
     """The :class:`LightSpec` of ``prt compare --light`` (``"smooth"`` or ``"sun"``; ``"sky"`` is handled by
-    :func:`reference_light`). The sun direction is the player's (:data:`~prt_torch.player.lighting.
+    :func:`compare_lights`). The sun direction is the player's (:data:`~prt_torch.player.lighting.
     DEFAULT_SUN_DIRECTION`); ``sun_power``: a scalar (times the default colour's ratios) or RGB."""
     from prt_torch.player.lighting import DEFAULT_SUN_DIRECTION
 
@@ -310,20 +331,31 @@ def spec_sh(spec: LightSpec, order: int) -> np.ndarray:
 
 
 def spec_reference(spec: LightSpec) -> ReferenceLight:
-    """The lighting at full resolution: the base map's radiance function (:func:`sky_reference`'s procedural sky
-    evaluated at each ray, without its delta sun, or the file's nearest pixel), plus the sun as a disk light sampled
+    """The lighting at full resolution: the base map's radiance function (:func:`sky_radiance`, the procedural sky
+    evaluated at each ray, without its sun, or the file's nearest pixel), plus the sun as a disk light sampled
     with its own rays."""
-    base = envmap_reference(spec.env) if spec.env is not None else sky_reference()
+    base = envmap_reference(spec.env).radiance if spec.env is not None else sky_radiance()
     disks = [] if spec.sun_dir is None else [(spec.sun_dir, spec.sun_half_angle, spec.sun_radiance)]
-    return ReferenceLight(base.radiance, [], spec.source, disks)
+    return ReferenceLight(base, [], spec.source, disks)
+
+
+def silhouette_mask(positions: np.ndarray, frames: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """``(..., V)`` bool: vertices whose normal faces the camera, ``n . (eye - p) > 0`` (``positions (..., V, 3)``
+    world, ``frames (..., V, 3, 3)`` rows ``(t, b, n)``, ``eye (3,)``).
+
+    **The silhouette rule** of ``prt compare``: a vertex seen from below its horizon (``n . v <= 0``) has radiance 0
+    in EVERY row and in the reference (the analytic BRDFs vanish there, so the Monte-Carlo reference is 0 by itself;
+    an RPO's view factor, a least-squares SH fit over the upper hemisphere, extrapolates, and the shipping shader has
+    no clamp). Such vertices lie on the silhouette rim, where the rasteriser interpolates them into front-facing
+    triangles."""
+    view = np.asarray(eye, dtype=np.float64) - np.asarray(positions, dtype=np.float64)
+    return np.einsum("...i,...i->...", np.asarray(frames, dtype=np.float64)[..., 2, :], view) > 0
 
 
 def front_facing(positions: np.ndarray, frames: np.ndarray, eye: np.ndarray) -> np.ndarray:
-    """``(V,)`` bool: vertices whose normal faces the camera (``n . (eye - p) > 0``). Only these are compared
-    with the reference per vertex: behind the horizon the analytic BRDF is 0 while an RPO's view factor (a
-    least-squares SH fit over the upper hemisphere) extrapolates; such vertices are hidden in the images."""
-    view = np.asarray(eye, dtype=np.float64) - np.asarray(positions, dtype=np.float64)
-    return np.einsum("vi,vi->v", np.asarray(frames, dtype=np.float64)[:, 2], view) > 0
+    """``(V,)`` bool: :func:`silhouette_mask` of one frame. Only these vertices are compared with the reference per
+    vertex (behind the horizon every row is 0 by the silhouette rule, or, without it, the RPO extrapolates)."""
+    return silhouette_mask(positions, frames, eye)
 
 
 @dataclass
@@ -344,3 +376,68 @@ def reference_pair(positions: np.ndarray, frames: np.ndarray, faces: np.ndarray,
     """Two independent :func:`reference_radiance` estimates (seeds ``seeds``)."""
     return ReferencePair(*(reference_radiance(positions, frames, faces, eye, light, brdfs, n_rays, s, offset)
                            for s in seeds))
+
+
+# -- the lighting of one ``prt compare`` run, whole and split ---------------------------------------------------------
+
+
+@dataclass
+class CompareLights:
+    """The lighting of one ``prt compare`` run in every form it is used:
+
+    * ``spec``: the :class:`LightSpec` (for methods that need the lighting as a map, e.g. ``sg_vct``);
+    * ``lighting``: the whole lighting on the SH / ZH-lobe path (the player's, windowed): every method's own row;
+    * ``peaks``: the :class:`~prt_torch.sg.split.PeakLight` list (empty: no ``+peaks`` rows) and ``residual`` the
+      rest of the light on the same path (``None`` without peaks): the ``+peaks`` rows;
+    * ``reference``: the :class:`ReferenceLight` of the Monte-Carlo reference, the same for every row: the residual
+      at full resolution + every peak as a disk of the peak's angular radius (:func:`split_reference`).
+    """
+
+    spec: LightSpec
+    lighting: Any
+    peaks: list[Any]
+    residual: Any
+    reference: ReferenceLight
+    residual_window: bool = True
+
+
+def compare_lights(light: str, env: str | Path | None, order: int, peaks: int | str = "auto",
+                   residual_window: bool = True, sun_size: float | None = None,
+                   sun_power: float | None = None) -> CompareLights:
+    """The :class:`CompareLights` of ``prt compare --light LIGHT [--env FILE] --peaks auto|0|K``.
+
+    * ``sky``: the player's lighting (``env`` or the procedural sky + its sun); peaks + residual by
+      :func:`prt_torch.player.peaks.load_peak_lighting` (``residual_window``: its sinc window on the residual); the
+      reference is the split (``peaks=0``: the ``"auto"`` split, so that every ``--peaks`` is scored against the same
+      low-noise reference).
+    * ``sun``: :func:`light_spec`'s base (``env`` or the sky without its sun) + its sun disk; the disk is the peak,
+      the base the residual (projected at order ``order``, ZH lobes); the reference :func:`spec_reference`.
+    * ``smooth``: no peak (``peaks`` must be ``"auto"`` or 0); the reference :func:`spec_reference`.
+    """
+    from prt_torch.light.envmap import envmap_to_sh
+    from prt_torch.player.lighting import lighting_from_sh, load_lighting
+    from prt_torch.player.peaks import AUTO, check_peaks_arg, load_peak_lighting, load_split
+    from prt_torch.sg.split import PeakLight
+
+    k = check_peaks_arg(peaks)
+    check(light in LIGHTS, f"--light must be one of {', '.join(LIGHTS)}, got {light!r}")
+    if light == "sky":
+        spec = sky_spec(env)
+        lighting = load_lighting(env, order)
+        if k == 0:
+            return CompareLights(spec, lighting, [], None, split_reference(load_split(env, AUTO), env),
+                                 residual_window)
+        pl = load_peak_lighting(env, order, k, window=residual_window)
+        return CompareLights(spec, lighting, list(pl.peaks), pl.lighting if pl.peaks else None,
+                             split_reference(pl.split, env), residual_window)
+    check(light == "sun" or k in (AUTO, 0), f"--peaks {k}: --light smooth has no peak light (use --light sky or sun)")
+    spec = light_spec(light, env, *(() if sun_size is None else (sun_size,)), sun_power=sun_power)
+    lighting = lighting_from_sh(spec_sh(spec, order), 3, source=spec.source)
+    ref = spec_reference(spec)
+    if spec.sun_dir is None or k == 0:
+        return CompareLights(spec, lighting, [], None, ref, residual_window)
+    peak = PeakLight(spec.sun_dir, spec.sun_half_angle, spec.sun_radiance)
+    base = spec.env or "procedural sky without its sun"
+    residual = lighting_from_sh(envmap_to_sh(_base_envmap(spec, 128), order), 3, source=f"{base} (residual)",
+                                window=residual_window)
+    return CompareLights(spec, lighting, [peak], residual, ref, residual_window)

@@ -17,8 +17,9 @@ import numpy as np
 from prt_torch import metrics as M
 from prt_torch.bake.deformable import is_deformable
 from prt_torch.bake.store import recorded_fps
-from prt_torch.compare.methods import METHODS, CompareRun, FrameSet, MethodBase, RadianceRequest, resolve
-from prt_torch.compare.reference import front_facing, reference_light, reference_pair
+from prt_torch.brdf.direct import peak_radiance, view_directions
+from prt_torch.compare.methods import METHODS, CompareRun, FrameBatch, FrameSet, MethodBase, RadianceRequest, resolve
+from prt_torch.compare.reference import compare_lights, front_facing, reference_pair, silhouette_mask
 from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path, atomic_write_json, atomic_write_text
 from prt_torch.rundir import RunDir
@@ -35,6 +36,15 @@ REFERENCE = "reference"
 #: the player plays; :func:`strip_brdf`)
 STRIP_BRDF = DIFFUSE
 TAGS = {DIFFUSE: "diffuse", GLOSSY: "glossy"}
+#: a row with a peak term: ``<method>+peaks_<kind>`` (:func:`peaks_row`)
+PEAKS_SEP = "+peaks_"
+#: the truth of every ``+peaks`` row (always a row when there are peaks): ray-traced SH visibility for the residual,
+#: exact (Embree) disc visibility for the peaks; the ceiling
+PEAKS_TRUTH = f"{TRUTH}{PEAKS_SEP}exact"
+#: default peak kinds of every visibility method (those the run has), plus ``exact`` for ``sh_truth``
+DEFAULT_PEAK_KINDS = ("spheres", "learned")
+#: the sinc window on the ``+peaks`` rows' residual lighting (measured on the demo run, docs in prt_torch.compare)
+RESIDUAL_WINDOW = False
 
 
 def load_compare_run(run_dir: str | Path | RunDir, dataset: str | Path | None = None, threads: int = 2) -> CompareRun:
@@ -124,6 +134,66 @@ def deformable_clip_frames(ctx: CompareRun, clip: str, max_frames: int | None = 
                     frame_index=np.asarray(idx, np.int64), rows=np.full(len(idx), -1, np.int64))
 
 
+def peaks_row(method: str, kind: str) -> str:
+    """The row name of ``method`` with the peak term of ``kind``: ``<method>+peaks_<kind>``."""
+    return f"{method}{PEAKS_SEP}{kind}"
+
+
+class _PeakKind(MethodBase):
+    """A peak visibility kind (:class:`prt_torch.player.peaks.PeakVisibility`) timed round-robin like a method:
+    ``visibility(batch) -> (B, V, P)`` the peaks' visible fractions (normals: the frames' third rows; skin: the frame
+    set's)."""
+
+    def __init__(self, pv: Any, fs: FrameSet, directions: np.ndarray, radii: np.ndarray, runtime: str) -> None:
+        self.pv, self.fs, self.directions, self.radii, self.runtime = pv, fs, directions, radii, runtime
+
+    def visibility(self, batch: FrameBatch) -> np.ndarray:
+        skin = self.fs.skin[batch.index] if self.fs.skin is not None else None
+        return self.pv(batch.positions, batch.frames[:, :, 2, :], skin, self.directions, self.radii)
+
+    def bytes(self) -> int:
+        return int(self.pv.bytes())
+
+
+def _peak_kinds(ctx: CompareRun, fs: FrameSet, lights: Any, vis_methods: list[str], kinds: list[str] | None,
+                ) -> tuple[dict[str, tuple[str, str]], dict[str, _PeakKind]]:
+    """The ``+peaks`` rows ``{row: (base method, kind)}`` (:data:`PEAKS_TRUTH` first) and the peak kinds to time
+    ``{kind: _PeakKind}``; none without peaks. ``kinds=None``: :data:`DEFAULT_PEAK_KINDS` the run has for every
+    visibility method (+ ``exact`` for ``sh_truth``); a list: each kind for every visibility method (one the run
+    cannot provide is a one-line error)."""
+    from prt_torch.bake.peaks import DEFAULT_DISC_SIDE
+    from prt_torch.player.peaks import PEAK_KINDS, learned_blockers_path, peak_visibility
+
+    if not lights.peaks:
+        return {}, {}
+    run = ctx.run
+    have = {"exact": True, "spheres": run.blockers_path.is_file() and fs.skin is not None,
+            "learned": learned_blockers_path(run) is not None and fs.skin is not None}
+    for k in kinds or ():
+        check(k in PEAK_KINDS, f"--peak-kinds: unknown peak kind {k!r}: expected one of {', '.join(PEAK_KINDS)}")
+        if not have[k]:
+            why = "a skinned character" if fs.skin is None else \
+                ("blocker spheres (prt export)" if k == "spheres" else "learned peak blockers (bake.peaks + train)")
+            raise PrtError(f"--peak-kinds {k}: {run.path} has no {why}")
+    rows: dict[str, tuple[str, str]] = {PEAKS_TRUTH: (TRUTH, "exact")}
+    for n in vis_methods:
+        ks = list(kinds) if kinds is not None else [k for k in DEFAULT_PEAK_KINDS if have[k]]
+        for k in sorted(ks, key=PEAK_KINDS.index):
+            rows.setdefault(peaks_row(n, k), (n, k))
+    dirs = np.array([p.direction for p in lights.peaks], dtype=np.float64).reshape(-1, 3)
+    radii = np.array([p.angular_radius for p in lights.peaks], dtype=np.float64)
+    offset = float(ctx.bake["ray_offset_world"])
+    timed: dict[str, _PeakKind] = {}
+    for k in sorted({k for _, k in rows.values()}, key=PEAK_KINDS.index):
+        pv = peak_visibility(k, run, ctx.character, offset=offset)
+        n_sph = len(pv.spheres.radius) if hasattr(pv, "spheres") else 0
+        what = {"exact": f"Embree ({DEFAULT_DISC_SIDE}x{DEFAULT_DISC_SIDE} disc rays per vertex and peak)",
+                "spheres": f"numba (cone-sphere kernel, {n_sph} blocker spheres)",
+                "learned": f"numba (cone-sphere kernel, {n_sph} learned peak blockers)"}[k]
+        timed[k] = _PeakKind(pv, fs, dirs, radii, what)
+    return rows, timed
+
+
 def _time_methods(methods: dict[str, MethodBase], fs: FrameSet, req: RadianceRequest,
                   bar: Any) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]], dict[str, list[float]]]:
     """Run every method on every frame, round-robin (the order rotates each frame), batch 1; returns visibility
@@ -163,7 +233,8 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
                 image_frames: int = 8, reference_frames: int = 4, reference_rays: int = 512, threads: int = 2,
                 log: Callable[[str], None] | None = None, progress: bool = False, motion: str | Path | None = None,
                 motion_fps: float | None = None, scene: Any = None, light: str = "sky", sun_size: float | None = None,
-                sun_power: float | None = None) -> dict[str, Any]:
+                sun_power: float | None = None, peaks: int | str = "auto", peak_kinds: list[str] | None = None,
+                residual_window: bool | None = None, silhouette: bool = True) -> dict[str, Any]:
     """Compare methods on a run (see :mod:`prt_torch.compare`); writes the compare directory; returns the JSON.
 
     Args:
@@ -185,9 +256,16 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
             :func:`prt_torch.compare.reference.light_spec`; every method and the reference see the same light.
         scene: a :class:`~prt_torch.scene.config.SceneConfig` (default: the run's recorded scene); with a floor or
             a second character, ``compare.json`` gains ``ground`` and ``scene`` (:mod:`prt_torch.compare.ground`).
+        peaks: ``"auto"``, ``0`` or ``K``: the light split (:func:`prt_torch.compare.reference.compare_lights`); with
+            peaks, every visibility method gains ``<method>+peaks_<kind>`` rows (:mod:`prt_torch.compare`).
+        peak_kinds: the peak visibilities of the ``+peaks`` rows, each for every visibility method (default
+            :data:`DEFAULT_PEAK_KINDS` the run has, + ``exact`` for ``sh_truth``; ``sh_truth+peaks_exact`` is always
+            a row when there are peaks: the ``+peaks`` rows' truth).
+        residual_window: the sinc window on the ``+peaks`` rows' residual lighting (default :data:`RESIDUAL_WINDOW`).
+        silhouette: the silhouette rule (every row 0 at vertices facing away from the camera; ``False``: off, to
+            measure what it changes).
     """
     from prt_torch.eval.evaluate import ProgressBar
-    from prt_torch.player.lighting import load_lighting
     from prt_torch.player.material import surface_albedo
 
     check(max_frames is None or max_frames >= 1, f"--frames must be >= 1, got {max_frames}")
@@ -203,16 +281,9 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         note(report.summary())
     names = resolve(methods, ctx)
     fs = clip_frames(ctx, clip, max_frames) if clip else heldout_frames(ctx, max_frames)
-    from prt_torch.compare.reference import light_spec, sky_spec, spec_reference, spec_sh
-
-    if light == "sky":
-        spec = sky_spec(env)
-        lighting = load_lighting(env, ctx.order)
-    else:
-        from prt_torch.player.lighting import lighting_from_sh
-
-        spec = light_spec(light, env, *(() if sun_size is None else (sun_size,)), sun_power=sun_power)
-        lighting = lighting_from_sh(spec_sh(spec, ctx.order), 3, source=spec.source)
+    lights = compare_lights(light, env, ctx.order, peaks=peaks, sun_size=sun_size, sun_power=sun_power,
+                            residual_window=RESIDUAL_WINDOW if residual_window is None else bool(residual_window))
+    spec, lighting = lights.spec, lights.lighting
     # the player's look: its BRDFs (the character's own material too) and its base colour, for every row and figure
     rpos, brdfs = player_brdfs(ctx.order, ctx.run, ctx.character)
     albedo = surface_albedo(ctx.character)
@@ -225,28 +296,59 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         m = METHODS[n]()
         m.prepare(ctx, fs)
         insts[n] = m
+    vis_methods = [n for n in names if insts[n].output == "visibility"]
+    prow, kinds = _peak_kinds(ctx, fs, lights, vis_methods, peak_kinds)
+    rows = [*names, *prow]
     source = f"clip {clip!r} posed and ray-traced here" if clip else "done held-out frames of the dataset"
-    note(f"{fs.n_frames} frames ({source}), {ctx.n_vertices} vertices; methods: {', '.join(names)}")
+    note(f"{fs.n_frames} frames ({source}), {ctx.n_vertices} vertices; methods: {', '.join(names)}"
+         + (f"; {len(lights.peaks)} peak light(s), peak kinds {', '.join(kinds)}" if kinds else "; no peak light"))
     bar = ProgressBar(progress, fs.n_frames, "methods, round-robin")
     try:
-        vis, rad_direct, secs = _time_methods(insts, fs, req, bar)
+        vis, rad_direct, secs = _time_methods({**insts, **{PEAKS_SEP + k: pk for k, pk in kinds.items()}}, fs, req,
+                                              bar)
     finally:
         bar.stop()
+    pvis = {k: vis.pop(PEAKS_SEP + k) for k in kinds}  # (F, V, P) visible fractions of the peaks
     truth = vis[TRUTH]
-    shader = ShippingShader({"light": lighting}, rpos, camera.eye, paths=("lobes",))
-    vis_methods = [n for n in names if insts[n].output == "visibility"]
+    p_dirs = np.array([p.direction for p in lights.peaks], dtype=np.float64).reshape(-1, 3)
+    p_powers = np.array([p.power for p in lights.peaks], dtype=np.float64).reshape(-1, 3)
+    shade_lights = {"light": lighting, **({"residual": lights.residual} if prow else {})}
+    shader = ShippingShader(shade_lights, rpos, camera.eye, paths=("lobes",))
 
-    # -- pass 1: vertex radiance errors over every frame, and the per-frame shadow gap ----------------------------
-    stats = {n: {b: RadianceStats() for b in rpos} for n in names}
-    gap = np.zeros(fs.n_frames)
-    for sl, res in shader.shade({n: vis[n] for n in vis_methods}, fs.frames, fs.positions):
+    def row_radiance(res: dict[Any, dict[str, np.ndarray]], frames_idx: np.ndarray | slice) -> dict[str, dict[str,
+                                                                                                          Any]]:
+        """``{brdf: {row: (f, V, 3)}}`` of every row on the frames ``frames_idx`` of ``fs`` (``res``: the shader's
+        output on them): methods on the whole lighting, ``+peaks`` rows the residual + the peak term; the
+        silhouette rule applied (:func:`prt_torch.compare.reference.silhouette_mask`)."""
+        fr, pos = fs.frames[frames_idx], fs.positions[frames_idx]
+        front = silhouette_mask(pos, fr, camera.eye)[..., None] if silhouette else None
+        view = view_directions(pos, camera.eye) if prow else None
+        out: dict[str, dict[str, Any]] = {}
         for b in rpos:
             d = res[("light", b, "lobes")]
-            for n in names:
-                pred = d[n] if n in d else rad_direct[n][b][sl]
-                stats[n][b].add(sa(pred), sa(d[TRUTH]))
+            per = {n: (d[n] if n in d else rad_direct[n][b][frames_idx]) for n in names}
+            if prow:
+                r = res[("residual", b, "lobes")]
+                term = {k: peak_radiance(fr, view, p_dirs, p_powers, pv[frames_idx], brdfs[b])
+                        for k, pv in pvis.items()}
+                per.update({row: r[base] + term[k] for row, (base, k) in prow.items()})
+            out[b] = {n: (a * front if front is not None else a) for n, a in per.items()}
+        return out
+
+    def truth_of(row: str) -> str:
+        return PEAKS_TRUTH if row in prow else TRUTH
+
+    # -- pass 1: vertex radiance errors over every frame, and the per-frame shadow gap ----------------------------
+    stats = {n: {b: RadianceStats() for b in rpos} for n in rows}
+    gap = np.zeros(fs.n_frames)
+    for sl, res in shader.shade({n: vis[n] for n in vis_methods}, fs.frames, fs.positions):
+        per_b = row_radiance(res, sl)
+        for b, per in per_b.items():
+            for n in rows:
+                stats[n][b].add(sa(per[n]), sa(per[truth_of(n)]))
             if b == strip_b:
-                gap[sl] = np.abs(sa(d[TRUTH]) - sa(d["unshadowed"])).mean(axis=(1, 2)) if "unshadowed" in d else 0.0
+                gap[sl] = np.abs(sa(per[TRUTH]) - sa(per["unshadowed"])).mean(axis=(1, 2)) if "unshadowed" in per \
+                    else 0.0
     strip_f = int(np.argmax(gap))
     img_idx = evenly_spaced(fs.n_frames, max(image_frames, 1), must=[strip_f])
     ref_idx = evenly_spaced(fs.n_frames, reference_frames, must=[strip_f]) if reference_frames > 0 else \
@@ -255,29 +357,37 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
 
     # -- pass 2: images (vs sh_truth on img_idx, vs the reference on ref_idx) -----------------------------------
     sub = {n: vis[n][all_idx] for n in vis_methods}
-    shaded = shader.shade_all(sub, fs.frames[all_idx], fs.positions[all_idx])
-    img = {n: {b: ImageStats() for b in rpos} for n in names}
-    ref_img = {n: {b: ImageStats() for b in rpos} for n in [*names, "estimate_b"]}
-    ref_rad = {n: {b: RadianceStats() for b in rpos} for n in [*names, "estimate_b"]}
+    shaded = row_radiance(shader.shade_all(sub, fs.frames[all_idx], fs.positions[all_idx]), all_idx)
+    img = {n: {b: ImageStats() for b in rpos} for n in rows}
+    ref_img = {n: {b: ImageStats() for b in rpos} for n in [*rows, "estimate_b"]}
+    ref_rad = {n: {b: RadianceStats() for b in rpos} for n in [*rows, "estimate_b"]}
     strip: dict[str, Any] = {}
+    strip_rows = _strip_rows(ctx, prow)
     faces = np.asarray(ctx.character.faces)
     offset = float(ctx.bake["ray_offset_world"])
-    light_ref = reference_light(env) if light == "sky" else spec_reference(spec)
+    light_ref = lights.reference
     bar = ProgressBar(progress, len(all_idx), "images and reference")
     renderer = ImageRenderer(ctx.character.rest_vertices, faces, camera, albedo=albedo)
     try:
         for j, f in enumerate(all_idx):
             pos = fs.positions[f]
             mask = renderer.mask(pos)
-            per = {b: {n: (shaded[("light", b, "lobes")][n][j] if n in vis_methods else rad_direct[n][b][f])
-                       for n in names} for b in rpos}
+            per = {b: {n: shaded[b][n][j] for n in rows} for b in rpos}
             if f in img_idx:
                 for b in rpos:
-                    fi = renderer.frame_images(pos, per[b], TRUTH, mask=mask)
-                    for n in names:
-                        img[n][b].add(*fi.sse[n])
-                    if f == strip_f and b == strip_b:
-                        strip["images"] = fi
+                    # one tone map per truth: sh_truth's for the methods, sh_truth+peaks_exact's for the +peaks rows
+                    for t, group in ((TRUTH, names), (PEAKS_TRUTH, list(prow))):
+                        if not group:
+                            continue
+                        fi = renderer.frame_images(pos, {n: per[b][n] for n in group}, t, mask=mask)
+                        for n in group:
+                            img[n][b].add(*fi.sse[n])
+                        if f == strip_f and b == strip_b and t == TRUTH:
+                            strip["images"] = fi
+                    if f == strip_f and b == strip_b and strip_rows:  # the strip's +peaks rows: sh_truth's tone map
+                        extra = renderer.frame_images(pos, {n: per[b][n] for n in [TRUTH, *strip_rows]}, TRUTH,
+                                                      mask=mask)
+                        strip["images"].images.update({n: extra.images[n] for n in strip_rows})
             if f in ref_idx:
                 pair = reference_pair(pos, fs.frames[f], faces, camera.eye, light_ref, brdfs, reference_rays, offset)
                 mean = pair.mean
@@ -286,7 +396,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
                     cand = {REFERENCE: mean[b], "estimate_a": pair.a[b], "estimate_b": pair.b[b], **per[b]}
                     fi = renderer.frame_images(pos, cand, REFERENCE, mask=mask)
                     ref_s = sa(mean[b])[front]
-                    for n in names:
+                    for n in rows:
                         ref_img[n][b].add(*fi.sse[n])
                         ref_rad[n][b].add(sa(per[b][n])[front], ref_s)
                     # noise: estimate b vs estimate a (tone map from the mean)
@@ -301,14 +411,21 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
 
     # -- the JSON --------------------------------------------------------------------------------------------------
     out_methods: dict[str, Any] = {}
-    for n in names:
-        m = insts[n]
-        ms = float(np.median(secs[n]) * 1e3)
+    ms_of = {n: float(np.median(secs[n]) * 1e3) for n in secs}
+    for n in rows:
+        base, kind = prow.get(n, (n, ""))
+        m = insts[base]
+        pk = kinds.get(kind)
+        ms = ms_of[base] + (ms_of[PEAKS_SEP + kind] if pk is not None else 0.0)
+        nbytes = int(m.bytes()) + (pk.bytes() if pk is not None else 0)
         entry: dict[str, Any] = {
-            "vis_rel_err": M.vis_rel_err(vis[n], truth) if n in vis else None,
+            "vis_rel_err": M.vis_rel_err(vis[base], truth) if base in vis else None,
             **_radiance_keys(stats[n], {b: img[n][b].psnr for b in rpos}),
-            "bytes": int(m.bytes()), "ms_per_frame": ms, "fps": 1e3 / ms if ms > 0 else float("inf"),
-            "output": m.output, "runtime": m.runtime, **m.info()}
+            "bytes": nbytes, "ms_per_frame": ms, "fps": 1e3 / ms if ms > 0 else float("inf"),
+            "output": m.output, "runtime": m.runtime + (f" + {pk.runtime}" if pk is not None else ""),
+            **(m.info() if pk is None else {"base_method": base, "peak_kind": kind, "truth": PEAKS_TRUTH,
+                                             "peak_ms_per_frame": ms_of[PEAKS_SEP + kind],
+                                             "peak_bytes": pk.bytes()})}
         if len(ref_idx):
             entry["vs_reference"] = {"vis_rel_err": None,
                                      **_radiance_keys(ref_rad[n], {b: ref_img[n][b].psnr for b in rpos}),
@@ -320,12 +437,19 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         "lighting": f"{lighting.source}: {len(lighting.dirs)} ZH lobes of the windowed order-{ctx.order} SH "
                     f"(the player's lighting, lobes path)",
         "lighting_path": "lobes", "light": light, "brdfs": list(rpos),
+        "peaks": [p.to_dict() for p in lights.peaks],
+        "peak_kinds": list(kinds),
+        "residual_lighting": None if lights.residual is None else
+        f"{lights.residual.source}: {len(lights.residual.dirs)} ZH lobes of the order-{ctx.order} SH, "
+        f"{'windowed' if lights.residual_window else 'no window'} (the +peaks rows)",
+        "silhouette": SILHOUETTE_RULE if silhouette else "none: RPO radiance as shaded at every vertex",
         "image_frames": int(len(img_idx)),
         "strip_frame": {"index": strip_f, "clip": fs.clips[strip_f], "frame_index": int(fs.frame_index[strip_f]),
                         "row": int(fs.rows[strip_f]), "brdf": strip_b},
         "material": _material_keys(ctx.character, albedo, strip_b),
         "timing": "median seconds per frame of each method's own run-time path (batch 1), all methods in one "
-                  "process, round-robin per frame after one untimed warm-up call",
+                  "process, round-robin per frame after one untimed warm-up call; a +peaks row: its method's plus "
+                  "its peak kind's (timed in the same round-robin)",
         "methods": out_methods,
     }
     if len(ref_idx):
@@ -336,7 +460,8 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
             "brdfs": {b: repr(brdfs[b]) for b in brdfs},
             "sampling": "randomised spherical-Fibonacci hemisphere about each normal, turned per vertex; "
                         "Embree visibility; analytic BRDF; mean of two independent estimates",
-            "vertices": "vertex figures over the vertices facing the camera (n . (eye - p) > 0) only",
+            "vertices": "vertex figures over the vertices facing the camera (n . (eye - p) > 0) only; "
+                        + ("the silhouette rule: " + SILHOUETTE_RULE if silhouette else "no silhouette rule"),
             "noise": noise,
             "note": "noise = estimate b vs estimate a; the mean of the two has about 6 dB less noise (PSNR ~6 dB "
                     "higher) than this pair, so vs_reference PSNRs near that ceiling are noise-limited",
@@ -345,9 +470,23 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
 
     catalogue = {b: r for b, r in rpos.items() if b in TAGS}  # the scene's figures: the catalogue BRDFs, as before
     result.update(compare_scene(ctx, fs, lighting, catalogue, scene=scene, image_frames=image_frames, threads=threads,
-                                log=note))
-    _write_outputs(ctx.run, result, strip, names)
+                                log=note, lights=lights, reference_frames=reference_frames,
+                                reference_rays=reference_rays))
+    _write_outputs(ctx.run, result, strip, [*names, *strip_rows])
     return result
+
+
+#: compare.json ``silhouette``: the one rule at silhouette vertices (:func:`~.reference.silhouette_mask`)
+SILHOUETTE_RULE = ("every row and the reference have radiance 0 at vertices whose normal faces away from the camera "
+                   "(n . (eye - p) <= 0), as the analytic BRDFs of the reference do")
+
+
+def _strip_rows(ctx: CompareRun, prow: dict[str, tuple[str, str]]) -> list[str]:
+    """The ``+peaks`` rows of the strip (readable: the methods' rows, then these two): the shipped learned kind with
+    its best peak kind (``learned``, else ``spheres``), and the ceiling :data:`PEAKS_TRUTH`."""
+    kind = ctx.model_meta.get("default_kind", "mlp")
+    cands = [peaks_row(f"learned_{kind}", k) for k in ("learned", "spheres")]
+    return [r for r in [next((c for c in cands if c in prow), None), PEAKS_TRUTH] if r is not None and r in prow]
 
 
 def strip_brdf(rpos: dict[str, Any]) -> str:
@@ -414,6 +553,7 @@ def table_markdown(result: dict[str, Any]) -> str:
     lines = [f"`prt compare`: {result['frames']} frames of {', '.join(result['clips'])} ({result['source']}), "
              f"{result['n_vertices']} vertices, order {result['sh_order']}; lighting: {result['lighting']}; "
              f"image PSNR on {result['image_frames']} frames (character pixels, the player's camera and tone map).",
+             *_peaks_lines(result),
              "", "| method | " + " | ".join(COLUMNS + mat) + " | run time |",
              "| --- | " + " | ".join("---:" for _ in COLUMNS + mat) + " | --- |"]
     for n, m in result["methods"].items():
@@ -432,6 +572,18 @@ def table_markdown(result: dict[str, Any]) -> str:
 
     lines += scene_markdown(result)
     return "\n".join(lines) + "\n"
+
+
+def _peaks_lines(result: dict[str, Any]) -> list[str]:
+    """The table's note on the light split: the peaks, the residual lighting, the +peaks rows' truth."""
+    peaks = result.get("peaks") or []
+    if not peaks:
+        return []
+    desc = "; ".join(f"direction {np.round(p['direction'], 3).tolist()}, half-angle {p['angular_radius_deg']:.3g} "
+                     f"deg, radiance {np.round(p['radiance'], 1).tolist()}" for p in peaks)
+    return ["", f"Peak lights ({len(peaks)}): {desc}. `<method>+peaks_<kind>` rows: the method's visibility under the "
+            f"residual ({result.get('residual_lighting')}) + each peak shaded with the analytic BRDF and the `<kind>` "
+            f"peak visibility; their figures vs sh_truth are against `{PEAKS_TRUTH}`."]
 
 
 def _write_outputs(run: RunDir, result: dict[str, Any], strip: dict[str, Any], names: list[str]) -> None:
