@@ -20,13 +20,29 @@ from the scene camera, one tone map from the truth) and ``scene.characters[k].{s
 {vis_rel_err, radiance_rel_rmse}`` (both shipped BRDFs pooled), plus ``scene.ms_per_frame`` / ``fps``: the
 median run-time visibility path of a whole scene frame (every character's learned model, SHEXP ground and
 others, composition; onnxruntime + numpy, no shading). ``compare/ground.png``: the ground at the strip frame,
-truth | SHEXP | 4x difference.
+truth | SHEXP | 4x difference (with peaks: | the ceiling | the last ``+peaks`` row | 4x difference; with a
+reference: | the Monte-Carlo floor).
+
+**Peak lights** (issue 27; ``lights`` a :class:`~prt_torch.compare.reference.CompareLights` with peaks):
+``ground.with_peaks`` holds the floor's ``+peaks`` rows, each with the ground figures' keys: the residual lighting on
+the same SH path (Embree SH truth or SHEXP) plus the floor's peak term ``albedo / pi x E_p x max(l_p . z, 0) x V_p``
+(:mod:`prt_torch.scene.peaks`, the scene player's rule), ``V_p`` by ``exact`` (Embree to disc samples against the
+posed characters), ``spheres`` (every character's blocker spheres) or ``learned`` (their learned peak blockers);
+``truth+peaks_exact`` is the ceiling the others are scored against, ``peak_vis_rel_err`` their peak visibility vs
+the exact one, ``ms_per_frame`` the floor's peak visibility alone.
+
+**Reference** (``reference_frames > 0`` and ``lights``): the floor's outgoing radiance by Monte-Carlo
+(:func:`~prt_torch.compare.reference.reference_radiance` on the floor vertices, traced against the floor and every
+posed character, Lambert x albedo, ``lights.reference``: the residual at full resolution + every peak as a disk of
+its angular radius), two estimates; the SHEXP floor gains ``vs_reference`` and so does every ``with_peaks`` row;
+``ground.reference`` has the Embree SH truth's figures (``truth``) and the estimates' ``noise``.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +70,11 @@ from prt_torch.scoring.sampling import evenly_spaced
 from prt_torch.scoring.shading import ShippingShader
 from prt_torch.scoring.statistics import ImageStats, RadianceStats
 from prt_torch.scoring.strips import abs_diff_image, image_strip, write_png
+
+#: the floor's ceiling with peaks (Embree SH visibility for the residual, Embree disc visibility for the peaks)
+PEAK_TRUTH = "truth+peaks_exact"
+#: the Monte-Carlo reference's name in the floor's images
+REFERENCE = "reference"
 
 
 def wants_scene(scene: SceneConfig | None) -> bool:
@@ -88,7 +109,8 @@ def _actors(ctx: Any, scene: SceneConfig, first_clip: str, fps: float, threads: 
 
 def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene: SceneConfig | None = None,
                   image_frames: int = 8, threads: int = 2, window_hw: tuple[int, int] = (480, 640),
-                  log: Callable[[str], None] | None = None) -> dict[str, Any]:
+                  log: Callable[[str], None] | None = None, lights: Any = None, reference_frames: int = 0,
+                  reference_rays: int = 512) -> dict[str, Any]:
     """The cast-shadow section of ``compare.json`` (module docstring): ``{"ground": ..., "scene": ...}``, or
     ``{}`` when the run has no scene with a floor or a second character.
 
@@ -97,6 +119,12 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
         lighting: the player's :class:`~prt_torch.player.lighting.Lighting`; rpos: the shipped RPOs.
         scene: the scene (default: the run's recorded one).
         image_frames: frames rendered for the ground image PSNR (evenly spaced).
+        lights: the run's :class:`~prt_torch.compare.reference.CompareLights` (``None``: no peak rows and no
+            reference): its peaks give the floor's ``+peaks`` rows (``ground.with_peaks``), its ``reference`` light
+            the floor's Monte-Carlo reference.
+        reference_frames: floor frames of the Monte-Carlo reference (``vs_reference`` figures; 0: none);
+            reference_rays: hemisphere rays per floor vertex of each of its two estimates (at least
+            :data:`~prt_torch.scene.truth.GROUND_TRUTH_RAYS`).
     """
     from prt_torch.player.player import camera_eye, camera_target
     from prt_torch.player.scene import shexp_graph_path
@@ -132,6 +160,8 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
     posed_c: list[list[Any]] = [[] for _ in actors]
     g_truth, g_shexp = [], []
     secs = []
+    fp = FloorPeaks.of(lights, bundles, ctx.bake) if ground is not None else None
+    g_meshes: list[list[tuple[np.ndarray, np.ndarray]]] = []
     note(f"scene: {k_n} character(s){', ground ' + str(ground.n_vertices) + ' vertices' if ground else ''}; "
          f"whole-scene Embree truth on {n_f} frames")
     for f in range(n_f):
@@ -175,6 +205,10 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
             receivers.append((ground.vertices, ground.frames(), GROUND_BELOW_HORIZON,
                           max(GROUND_TRUTH_RAYS, tracer.n_rays)))
         tv = tracer.frame(meshes, receivers)
+        if ground is not None:
+            g_meshes.append(meshes)
+            if fp is not None:
+                fp.add_frame(ground, meshes[1:], posed)
         for k in range(k_n):
             truth_c[k].append(tv[k])
             insc[k].append(out[k][0])
@@ -211,14 +245,109 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
         "in_scene": "learned self-visibility x ground half-space x SHEXP of the other characters (SH products)",
     }
     if ground is not None:
+        ref = GroundReference(lights.reference, int(reference_frames), max(int(reference_rays), GROUND_TRUTH_RAYS),
+                              float(bake["ray_offset_world"]), g_meshes) if lights is not None else None
         result["ground"] = _ground_scores(ground, np.stack(g_shexp), np.stack(g_truth), lighting, rpos, camera,
-                                          image_frames, run)
+                                          image_frames, run, fp, ref)
     return result
 
 
+@dataclass
+class FloorPeaks:
+    """The floor's peak visibility ``(G, P)`` per compared frame for every kind the scene's runs have (``exact``:
+    Embree against the posed characters, :func:`prt_torch.scene.peaks.floor_exact_peak_visibility`; ``spheres``:
+    every character's blocker spheres, ``learned``: every character's learned peak blockers, through
+    :func:`prt_torch.scene.peaks.floor_peak_visibility`), the medians of their run times, and the peaks and residual
+    lighting they are shaded with (:class:`~prt_torch.compare.reference.CompareLights`)."""
+
+    directions: np.ndarray
+    radii: np.ndarray
+    powers: np.ndarray
+    residual: Any
+    spheres: dict[str, list[Any] | None]
+    offset: float
+    side: int
+    vis: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    secs: dict[str, list[float]] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, lights: Any, bundles: list[Any], bake: Any) -> FloorPeaks | None:
+        """From the compare's lights and the scene's run bundles; ``None`` without peaks."""
+        from prt_torch.bake.peaks import DEFAULT_DISC_SIDE
+        from prt_torch.blockers.spheres import SphereSet
+        from prt_torch.player.peaks import learned_blockers_path
+        from prt_torch.player.scene import load_spheres
+
+        if lights is None or not lights.peaks:
+            return None
+        spheres: dict[str, list[Any] | None] = {"exact": None, "spheres": [load_spheres(b.run) for b in bundles]}
+        learned = [learned_blockers_path(b.run) for b in bundles]
+        if all(p is not None for p in learned):
+            spheres["learned"] = [SphereSet.load(p) for p in learned]
+        pk = lights.peaks
+        return cls(np.array([p.direction for p in pk], np.float64).reshape(-1, 3),
+                   np.array([p.angular_radius for p in pk], np.float64), np.array([p.power for p in pk], np.float64),
+                   lights.residual, spheres, float(bake["ray_offset_world"]), DEFAULT_DISC_SIDE)
+
+    def add_frame(self, ground: Any, meshes: list[tuple[np.ndarray, np.ndarray]], posed: list[Any]) -> None:
+        """Every kind's floor peak visibility of one frame (``meshes``: the posed characters; ``posed``: their
+        :class:`~prt_torch.scene.scene.PosedMesh`)."""
+        from prt_torch.blockers import pose_spheres
+        from prt_torch.scene.peaks import floor_exact_peak_visibility, floor_peak_visibility
+
+        for kind, sph in self.spheres.items():
+            t0 = time.perf_counter()
+            if sph is None:
+                v = floor_exact_peak_visibility(ground.vertices, meshes, self.directions, self.radii, self.offset,
+                                                side=self.side)
+            else:
+                c = np.concatenate([pose_spheres(x, p.skin)[0] for x, p in zip(sph, posed, strict=True)])
+                r = np.concatenate([np.asarray(x.radius, np.float32) for x in sph])
+                v = floor_peak_visibility(ground.vertices, c, r, self.directions, self.radii)
+            self.secs.setdefault(kind, []).append(time.perf_counter() - t0)
+            self.vis.setdefault(kind, []).append(v)
+
+
+@dataclass
+class GroundReference:
+    """The floor's Monte-Carlo reference: the compare's :class:`~prt_torch.compare.reference.ReferenceLight`, how
+    many frames, rays per vertex of each of the two estimates, the ray offset and, per compared frame, the scene's
+    meshes (floor first, then the posed characters)."""
+
+    light: Any
+    frames: int
+    rays: int
+    offset: float
+    meshes: list[list[tuple[np.ndarray, np.ndarray]]]
+
+    def estimates(self, ground: Any, f: int, eye: np.ndarray, albedo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Two independent estimates (seeds 101, 202) of the floor's ``(G, 3)`` outgoing radiance at frame ``f``:
+        :func:`prt_torch.compare.reference.reference_radiance` on the floor vertices traced against the floor and
+        every posed character, the Lambert BRDF times the floor albedo."""
+        from prt_torch.bake.embree import RayScene
+        from prt_torch.brdf.rpo import builtin_brdf
+        from prt_torch.compare.reference import reference_radiance
+        from prt_torch.scene.truth import merged_mesh
+
+        scene = RayScene(*merged_mesh(self.meshes[f]))
+        brdf = {"lambert": builtin_brdf("lambert")}
+        out = [reference_radiance(ground.vertices, ground.frames(), ground.faces, eye, self.light, brdf, self.rays,
+                                  seed, self.offset, scene=scene)["lambert"] * albedo for seed in (101, 202)]
+        return out[0], out[1]
+
+
+def _figures(stats: RadianceStats, img: ImageStats) -> dict[str, Any]:
+    return {"psnr_image": img.psnr, "radiance_rel_rmse": stats.rel_rmse, "psnr_vertex": stats.psnr}
+
+
 def _ground_scores(ground: Any, shexp_v: np.ndarray, truth: np.ndarray, lighting: Any, rpos: dict[str, Any],
-                   camera: Camera, image_frames: int, run: RunDir) -> dict[str, Any]:
-    """Ground figures (diffuse RPO x albedo) and ``compare/ground.png``."""
+                   camera: Camera, image_frames: int, run: RunDir, fp: FloorPeaks | None = None,
+                   ref: GroundReference | None = None) -> dict[str, Any]:
+    """Ground figures (diffuse RPO x albedo; with peaks, the residual's + the floor's peak term per kind, vs the
+    ceiling ``truth+peaks_exact``; with a reference, every row vs the Monte-Carlo floor) and ``compare/ground.png``."""
+    from prt_torch.scene.peaks import floor_peak_radiance
+    from prt_torch.scoring.statistics import image_sse
+
     check(DIFFUSE in rpos, f"the ground is shaded with the diffuse RPO {DIFFUSE!r}, not among {list(rpos)}")
     n_f = truth.shape[0]
     frames = ground.frames((n_f,))
@@ -228,27 +357,109 @@ def _ground_scores(ground: Any, shexp_v: np.ndarray, truth: np.ndarray, lighting
     rad = {n: r * ground.albedo for n, r in rad.items()}
     stats = RadianceStats()
     stats.add(rad["shexp"], rad["truth"])
-    # the image strip frame: the largest shadow (truth darkest relative to its mean)
-    strip_f = int(np.argmax(np.ptp(rad["truth"].sum(-1), axis=1)))
+    prow: dict[str, np.ndarray] = {}  # the +peaks rows, PEAK_TRUTH first
+    if fp is not None:
+        res = ShippingShader({"light": fp.residual}, {DIFFUSE: rpos[DIFFUSE]}, camera.eye, paths=("lobes",))
+        res_rad = {n: r * ground.albedo for n, r in res.shade_all({"truth": truth, "shexp": shexp_v}, frames, pos)[
+            ("light", DIFFUSE, "lobes")].items()}
+        exact = np.stack(fp.vis["exact"])
+        prow[PEAK_TRUTH] = res_rad["truth"] + floor_peak_radiance(ground.albedo, fp.directions, fp.powers, exact)
+        for kind, v in fp.vis.items():
+            prow[f"shexp+peaks_{kind}"] = res_rad["shexp"] + floor_peak_radiance(ground.albedo, fp.directions,
+                                                                                 fp.powers, np.stack(v))
+    pstats = {n: RadianceStats() for n in prow}
+    for n in prow:
+        pstats[n].add(prow[n], prow[PEAK_TRUTH])
+    # the image strip frame: the largest shadow (truth darkest relative to its mean; with peaks: the peaks' truth)
+    strip_f = int(np.argmax(np.ptp((prow[PEAK_TRUTH] if prow else rad["truth"]).sum(-1), axis=1)))
     img_idx = evenly_spaced(n_f, max(image_frames, 1), must=[strip_f])
+    ref_idx = evenly_spaced(n_f, ref.frames, must=[strip_f]) if ref is not None and ref.frames > 0 else \
+        np.zeros(0, np.int64)
     img = ImageStats()
+    pimg = {n: ImageStats() for n in prow}
+    rows = {"truth": rad["truth"], "shexp": rad["shexp"], **prow}
+    ref_img = {n: ImageStats() for n in [*rows, "estimate_b"]}
+    ref_rad = {n: RadianceStats() for n in [*rows, "estimate_b"]}
+    strip_ref = None
     with ImageRenderer(ground.vertices, ground.faces, camera) as r:
         mask = r.mask(ground.vertices)
-        for f in img_idx:
-            fi = r.frame_images(ground.vertices, {"truth": rad["truth"][f], "shexp": rad["shexp"][f]}, "truth",
-                                mask=mask)
-            img.add(*fi.sse["shexp"])
-            if f == strip_f:
-                strip = image_strip([fi.images["truth"], fi.images["shexp"]], ["ground: Embree truth", "ground: SHEXP"],
-                                    [None, abs_diff_image(fi.images["shexp"], fi.images["truth"])],
-                                    ["", "4x |SHEXP - truth|"])
+        for f in np.union1d(img_idx, ref_idx):
+            if f in img_idx:
+                fi = r.frame_images(ground.vertices, {"truth": rad["truth"][f], "shexp": rad["shexp"][f]}, "truth",
+                                    mask=mask)
+                img.add(*fi.sse["shexp"])
+                if prow:
+                    pi = r.frame_images(ground.vertices, {n: x[f] for n, x in prow.items()}, PEAK_TRUTH, mask=mask)
+                    for n in prow:
+                        pimg[n].add(*pi.sse[n])
+                if f == strip_f:
+                    strip_imgs = [fi.images["truth"], fi.images["shexp"]]
+                    strip_names = ["ground: Embree truth", "ground: SHEXP"]
+                    strip_diff = [None, abs_diff_image(fi.images["shexp"], fi.images["truth"])]
+                    strip_lab = ["", "4x |SHEXP - truth|"]
+                    if prow:
+                        last = list(prow)[-1]
+                        strip_imgs += [pi.images[PEAK_TRUTH], pi.images[last]]
+                        strip_names += [f"ground: {PEAK_TRUTH}", f"ground: {last}"]
+                        strip_diff += [None, abs_diff_image(pi.images[last], pi.images[PEAK_TRUTH])]
+                        strip_lab += ["", f"4x |{last} - {PEAK_TRUTH}|"]
+            if f in ref_idx:
+                assert ref is not None
+                ea, eb = ref.estimates(ground, int(f), camera.eye, ground.albedo)
+                mean = 0.5 * (ea + eb)
+                cand = {REFERENCE: mean, "estimate_a": ea, "estimate_b": eb, **{n: x[f] for n, x in rows.items()}}
+                fr = r.frame_images(ground.vertices, cand, REFERENCE, mask=mask)
+                for n in rows:
+                    ref_img[n].add(*fr.sse[n])
+                    ref_rad[n].add(rows[n][f], mean)
+                ref_img["estimate_b"].add(*image_sse(fr.images["estimate_b"], fr.images["estimate_a"], fr.mask))
+                ref_rad["estimate_b"].add(eb, ea)
+                if f == strip_f:
+                    strip_ref = fr.images[REFERENCE]
+    if strip_ref is not None:
+        strip_imgs.append(strip_ref)
+        strip_names.append("ground: Monte-Carlo reference")
+        strip_diff.append(None)
+        strip_lab.append("")
+    strip = image_strip(strip_imgs, strip_names, strip_diff, strip_lab)
     run.compare_dir.mkdir(parents=True, exist_ok=True)
     write_png(run.compare_ground, strip)
-    return {"psnr_image": img.psnr, "radiance_rel_rmse": stats.rel_rmse, "vis_rel_err": M.vis_rel_err(shexp_v, truth),
-            "psnr_vertex": stats.psnr, "vertices": ground.n_vertices, "frames": n_f, "image_frames": int(len(img_idx)),
-            "strip_frame": strip_f, "albedo": [float(x) for x in ground.albedo],
-            "method": "SHEXP (the run's SHEXP graph) of every character's posed blocker spheres, diffuse RPO x albedo",
-            "image": "the ground's pixels rendered alone from the scene camera, one tone map from the truth"}
+    has_ref = len(ref_idx) > 0
+    out: dict[str, Any] = {
+        "psnr_image": img.psnr, "radiance_rel_rmse": stats.rel_rmse, "vis_rel_err": M.vis_rel_err(shexp_v, truth),
+        "psnr_vertex": stats.psnr, "vertices": ground.n_vertices, "frames": n_f, "image_frames": int(len(img_idx)),
+        "strip_frame": strip_f, "albedo": [float(x) for x in ground.albedo],
+        "method": "SHEXP (the run's SHEXP graph) of every character's posed blocker spheres, diffuse RPO x albedo",
+        "image": "the ground's pixels rendered alone from the scene camera, one tone map from the truth"}
+    if has_ref:
+        out["vs_reference"] = _figures(ref_rad["shexp"], ref_img["shexp"])
+    if prow:
+        exact = np.stack(fp.vis["exact"])  # type: ignore[union-attr]
+        wp: dict[str, Any] = {}
+        for n in prow:
+            kind = n.split("+peaks_")[-1]
+            ms = float(np.median(fp.secs[kind]) * 1e3)  # type: ignore[union-attr]
+            wp[n] = {**_figures(pstats[n], pimg[n]),
+                     "vis_rel_err": 0.0 if n == PEAK_TRUTH else M.vis_rel_err(shexp_v, truth),
+                     "peak_vis_rel_err": M.vis_rel_err(np.stack(fp.vis[kind]), exact),  # type: ignore[union-attr]
+                     "ms_per_frame": ms, "fps": 1e3 / ms if ms > 0 else float("inf")}
+            if has_ref:
+                wp[n]["vs_reference"] = _figures(ref_rad[n], ref_img[n])
+        out["with_peaks"] = wp
+        out["peaks_method"] = ("the residual lighting on the same SH path (truth: Embree SH visibility; shexp: SHEXP) "
+                               "+ albedo / pi x E_p x max(l_p . z, 0) x V_p, V_p the floor's visible fraction of each "
+                               "peak's disc under every character (exact: Embree to disc samples; spheres: the blocker "
+                               "spheres; learned: the learned peak blockers; cone-sphere kernel); ms_per_frame: the "
+                               "floor's peak visibility (median)")
+    if has_ref:
+        assert ref is not None
+        out["reference"] = {
+            "frames": int(len(ref_idx)), "frame_indices": [int(i) for i in ref_idx], "rays_per_estimate": ref.rays,
+            "estimates": 2, "lighting": ref.light.source, "truth": _figures(ref_rad["truth"], ref_img["truth"]),
+            "noise": _figures(ref_rad["estimate_b"], ref_img["estimate_b"]),
+            "sampling": "reference_radiance on the floor vertices, traced against the floor and every posed "
+                        "character, Lambert x albedo; mean of two independent estimates (noise: b vs a)"}
+    return out
 
 
 def scene_markdown(result: dict[str, Any]) -> list[str]:
@@ -264,7 +475,22 @@ def scene_markdown(result: dict[str, Any]) -> list[str]:
         p = g.get("psnr_image")
         lines.append(f"| ground (SHEXP) | {g['vis_rel_err']:.4f} | {g['radiance_rel_rmse']:.4f} | "
                      f"{'-' if p is None else f'{p:.2f}'} |")
+        for n, w in g.get("with_peaks", {}).items():
+            p = w.get("psnr_image")
+            lines.append(f"| ground ({n}) | {w['peak_vis_rel_err']:.4f} (peaks) | {w['radiance_rel_rmse']:.4f} | "
+                         f"{'-' if p is None else f'{p:.2f}'} |")
     for c in sc["characters"]:
         for n in ("self_only", "in_scene"):
             lines.append(f"| {c['name']}: {n} | {c[n]['vis_rel_err']:.4f} | {c[n]['radiance_rel_rmse']:.4f} | - |")
+    if g and "reference" in g:
+        ref = g["reference"]
+        lines += ["", f"The floor vs its Monte-Carlo reference ({ref['frames']} frames, "
+                  f"{ref['rays_per_estimate']} rays per vertex and estimate; {ref['lighting']}):", "",
+                  "| floor | radiance_rel_rmse | psnr_vertex | psnr_image |", "| --- | ---: | ---: | ---: |"]
+        named = {"truth (Embree SH, whole light)": ref["truth"], "shexp": g["vs_reference"], "noise (estimate b vs a)":
+                 ref["noise"], **{n: w["vs_reference"] for n, w in g.get("with_peaks", {}).items()}}
+        for n, x in named.items():
+            p = x.get("psnr_image")
+            lines.append(f"| {n} | {x['radiance_rel_rmse']:.4f} | {x['psnr_vertex']:.2f} | "
+                         f"{'-' if p is None else f'{p:.2f}'} |")
     return lines
