@@ -143,7 +143,7 @@ def test_compare_of_a_textured_character_scores_the_material(textured_run: Path,
     rule: a reference equal to sh_truth's radiance scores sh_truth at (numerically) infinite PSNR for every BRDF.
     A reference rendered without the base colour would not."""
     import prt_torch.compare.run as run_mod
-    from prt_torch.compare.reference import ReferencePair
+    from prt_torch.compare.reference import ReferencePair, silhouette_mask
     from prt_torch.player.lighting import load_lighting
     from prt_torch.scoring.rpos import player_brdfs
     from prt_torch.scoring.shading import ShippingShader
@@ -159,7 +159,8 @@ def test_compare_of_a_textured_character_scores_the_material(textured_run: Path,
         vis = by_pos[np.asarray(positions, np.float32).tobytes()]
         sh = ShippingShader({"light": lighting}, rpos, eye, paths=("lobes",))
         res = sh.shade_chunk({"t": vis[None]}, frames[None], positions[None])
-        est = {b: res[("light", b, "lobes")]["t"][0].astype(np.float64) for b in rpos}
+        front = silhouette_mask(positions, frames, eye)[:, None]  # the one silhouette rule of every row
+        est = {b: res[("light", b, "lobes")]["t"][0].astype(np.float64) * front for b in rpos}
         return ReferencePair(est, est)
 
     monkeypatch.setattr(run_mod, "reference_pair", truth_pair)
