@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from prt_torch.web.site import ASSETS, DATA, MANIFEST, MODEL, SITE_FORMAT
+from prt_torch.web.site import ASSETS, DATA, MANIFEST, MODEL, PEAKS_MODEL, SITE_FORMAT
 
 
 def _site_copy(site: Path, dst: Path) -> Path:
@@ -69,6 +69,9 @@ CASES = {
     "model_truncated": (lambda s: _truncate(s / ASSETS / MODEL), ["visibility model", MODEL, "truncated"]),
     "model_corrupt": (lambda s: _flip_byte(s / ASSETS / MODEL), ["visibility model", MODEL, "sha256"]),
     "model_garbage": (lambda s: _stale_model(s, b"not an onnx graph" * 10), ["visibility model", "onnxruntime"]),
+    "peak_model_missing": (lambda s: (s / ASSETS / PEAKS_MODEL).unlink(),
+                           ["peak visibility model", PEAKS_MODEL, "missing", "404"]),
+    "peak_model_corrupt": (lambda s: _flip_byte(s / ASSETS / PEAKS_MODEL), ["peak visibility model", "sha256"]),
     "wasm_missing": (lambda s: (s / WASM).unlink(), ["onnxruntime-web", WASM, "missing", "404"]),
     "script_missing": (lambda s: (s / "vendor/three/three.module.js").unlink(),
                        ["vendor/three/three.module.js", "missing", "404"]),

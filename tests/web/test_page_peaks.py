@@ -240,3 +240,49 @@ def test_peaks_toggle_in_the_ui(page: Any) -> None:
     page.page.keyboard.press("p")
     assert page.page.evaluate(get) == on
     page.page.evaluate("s => window.prt.setState(s)", {"playing": False, "paused": True})
+
+
+def test_learned_peak_graph_runs_in_the_page(peak_run: Path, browser: Any, tmp_path: Path) -> None:
+    """A run trained with ``train.peaks`` (order 3): the site ships its ``peaks.onnx`` byte for byte, onnxruntime-web
+    runs it as onnxruntime does, and the page's radiance with peaks on equals Python's on the page's own posing."""
+    from prt_torch.player.lighting import load_lighting
+    from prt_torch.player.peaks import load_peak_lighting
+    from prt_torch.player.player import Player
+    from prt_torch.rundir import RunDir
+    from prt_torch.web.check import served_page
+    from prt_torch.web.peaks import PeakGraph, page_brdf, page_radiance
+    from prt_torch.web.site import ASSETS, read_manifest, site_local, write_site
+
+    site = tmp_path / "site"
+    write_site(peak_run, site, material_rpo=False, env_presets=False)
+    m = read_manifest(site)
+    assert m["peaks_model"]["source"] == "learned" and m["order"] == 3
+    raw = (site / ASSETS / m["peaks_model"]["file"]).read_bytes()
+    assert raw == RunDir(peak_run).peak_graph_path.read_bytes()
+    graph = PeakGraph(site / ASSETS / m["peaks_model"]["file"])
+    player = Player(peak_run, threads=1, graph="split")
+    try:
+        brdf = m["default_brdf"]
+        player.set_brdf(brdf)
+        whole, split = load_lighting(None, player.order), load_peak_lighting(None, player.order, "auto")
+        local = site_local(player.character, "wave", 3)
+        state, want, pvis = page_radiance(player, local, whole, split, 1.5, graph, page_brdf(brdf))
+        with served_page(site, browser=browser) as ps:
+            assert ps.wait_ready(), ps.page.evaluate("window.prt.error")
+            ps.frame({**SKY, "clip": "wave", "frame": 3, "brdf": brdf, "lightAngle": 1.5, "peaks": True})
+            got = _page_radiance(ps, {}, None)
+            pos = state.positions[0].T.astype(np.float32)
+            web_vis = np.reshape(ps.page.evaluate("a => window.prt.peakVisibility(a)", {
+                "positions": pos.reshape(-1).astype(float).tolist(),
+                "normals": state.normals[0].T.reshape(-1).astype(float).tolist(),
+                "skin": state.skin.astype(np.float32).reshape(-1).astype(float).tolist(),
+                "directions": split.rotated_about_z(1.5).directions.reshape(-1).astype(float).tolist(),
+                "angular_radii": split.angular_radii.astype(float).tolist()}), pvis.shape)
+            assert ps.errors == []
+    finally:
+        player.close()
+    assert (pvis < 0.5).any(), "the learned blockers cast no sun shadow"
+    assert np.linalg.norm(web_vis - pvis) <= 1e-5 * np.linalg.norm(pvis)
+    keep = ~_grazing(state, 1e-2)
+    rel = np.linalg.norm((got - want[0])[keep]) / np.linalg.norm(want[0][keep])
+    assert rel <= 2e-3, rel  # JS vs numpy posing, as above
