@@ -59,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(result, indent=2, sort_keys=True))
         else:
-            print(f"psnr_vs_player {result['psnr_vs_player']:.2f} dB (min over {len(result['frames'])} frames), "
+            n_frames = len(result["frames"]) + len(result.get("peak_frames", []))
+            print(f"psnr_vs_player {result['psnr_vs_player']:.2f} dB (min over {n_frames} frames), "
                   f"console_errors {len(result['console_errors'])}, ms_per_frame {result['ms_per_frame']:.1f}, "
                   f"visibility rel err {result['visibility_rel_err']:.2e}; artifacts in {out / 'check'}")
         status = 0 if result["ok"] else 1
