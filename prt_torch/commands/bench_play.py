@@ -22,13 +22,19 @@ On the exported run (default ``runs/demo``: built-in character ~11.7k vertices, 
   47k vertices, with a synthetic model of the run's structure: its MLP, per-cluster bases of its sizes, random
   values) and against crowd size; plotted to ``--plot``.
 
+* peak lights (issue 27; the player's default lighting, the procedural sky, has one: its sun): the whole frame with
+  the peaks' term (posing + fused call + peak visibility + peak shading, :meth:`~prt_torch.player.player.Player.
+  compute`) next to the same frame without it, interleaved frame by frame: ``peaks`` (``frame_ms_on`` /
+  ``frame_ms_off``, ``fps_on`` / ``fps_off``, their ``ratio``, the peak visibility's and the peak shading's ms, the
+  visibility's ``kind``);
+
 * the posing as an ONNX graph (:mod:`prt_torch.export.posing_graph`, exported into the temporary directory; needs
   torch) next to the numpy posing: ``posing_onnx``, ``frame_posing_onnx`` (it + the fused call, two ORT calls) and
   ``frame_chained`` (ONE ORT call: the posing graph chained into the fused graph) - a measurement, not the shipping
   path;
 
 JSON keys (``--json``): ``fps``, ``roofline_fraction``, ``steps: {NAME: {ms, bound_ms, bytes, flops, bound_by}}``,
-``batched_character_fps``, ``speedup_vs_raytrace``, ``bytes_model``, ``crowd``, ``precisions``, ``machine``
+``peaks``, ``batched_character_fps``, ``speedup_vs_raytrace``, ``bytes_model``, ``crowd``, ``precisions``, ``machine``
 (``copy_bandwidth_gb_s``, ``gemm_gflop_s``), ``scaling`` (with ``--scaling``).
 """
 
@@ -74,6 +80,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="onnxruntime device (cuda: onnxruntime-gpu and a GPU)")
     parser.add_argument("--scaling", action="store_true", help="also time vertex counts ~3k..47k and plot")
     parser.add_argument("--plot", default="docs/play_scaling.png", help="scaling figure (PNG) with --scaling")
+    parser.add_argument("--peaks", default="auto", help="peak lights of the timed frames with peaks: auto (the "
+                                                        "sky's sun), or K in 1..4 (default auto; 0 skips them)")
+    parser.add_argument("--peak-visibility", default=None,
+                        help="the peaks' visibility: exact, spheres or learned (default: the player's, learned when "
+                             "the run has its peak blockers)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -126,6 +137,11 @@ def run(args: argparse.Namespace) -> int:
         check(p in PRECISIONS, f"--precisions: unknown precision {p!r} (expected {list(PRECISIONS)})")
     if not args.brdf.strip():
         raise PrtError("--brdf: empty name")
+    from prt_torch.player.peaks import PEAK_KINDS, check_peaks_arg
+
+    peaks_arg = check_peaks_arg(args.peaks)
+    check(args.peak_visibility is None or args.peak_visibility in PEAK_KINDS,
+          f"--peak-visibility: unknown kind {args.peak_visibility!r}: expected one of {', '.join(PEAK_KINDS)}")
     V.input_dir(args.run, "run directory")
     if args.scaling:
         V.output_file(args.plot, "--plot")
@@ -135,6 +151,12 @@ def run(args: argparse.Namespace) -> int:
     kw = {"brdf": args.brdf, "threads": args.threads, "device": args.device}
     player = Player(run_dir, graph="fused", **kw)
     split = Player(run_dir, graph="split", **kw)
+    # the frames with peak lights: the same fused path plus the peaks' term (``None``: --peaks 0)
+    with_peaks = None if peaks_arg == 0 else Player(run_dir, graph="fused", peaks=peaks_arg,
+                                                    peak_kind=args.peak_visibility, **kw)
+    if with_peaks is not None and not with_peaks.peaks.peaks:
+        with_peaks.close()
+        with_peaks = None
     meta = player.bundle.meta
     clips = list(player.character.clips)
     check(bool(clips), f"{run_dir}: the character has no clips")
@@ -168,7 +190,9 @@ def run(args: argparse.Namespace) -> int:
     # -- per-frame path: fused frames, split frames, precision variants, interleaved ------------------------
     times: dict[str, list[float]] = {k: [] for k in ("posing", "fused", "frame", "split_posing", "visibility",
                                                       "shading", *(f"visibility_{p}" for p in prec_graphs),
-                                                      "posing_onnx", "frame_posing_onnx", "frame_chained")}
+                                                      "posing_onnx", "frame_posing_onnx", "frame_chained",
+                                                      "frame_peaks", "frame_no_peaks", "peak_visibility",
+                                                      "peak_shading", "frame_peaks_one_thread")}
     posing_onnx = _posing_onnx(player, run, Path(tmp.name), args.threads, args.device)  # None without torch
     blocks: list[float] = []
     with console.status(f"timing {args.repeats} x {args.frames} frames on '{clip}' ..."):
@@ -203,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
                     ta = time.perf_counter()
                     g.run_unchecked({"pose": s2.features})
                     pt[p] = time.perf_counter() - ta
+                if with_peaks is not None:  # the whole frame with its peaks, next to the same frame without them
+                    pt.update(_peak_frame(with_peaks, player, loc))
                 if i < args.warmup:
                     continue
                 for k, v in (("posing", t1 - t0), ("fused", t2 - t1), ("frame", t2 - t0), ("split_posing", t3 - t2),
@@ -277,6 +303,17 @@ def run(args: argparse.Namespace) -> int:
             ms = _median_ms(times[name])
             steps[name] = {**steps[like], "ms": ms, "fraction": steps[like]["bound_ms"] / ms}
 
+    peak_row: dict[str, Any] | None = None
+    if with_peaks is not None:
+        on, off = _median_ms(times["frame_peaks"]), _median_ms(times["frame_no_peaks"])
+        src = with_peaks.peak_source
+        peak_row = {"n_peaks": len(with_peaks.peaks.peaks), "kind": None if src is None else src.kind,
+                    "frame_ms_on": on, "frame_ms_off": off, "fps_on": 1e3 / on, "fps_off": 1e3 / off,
+                    "ratio": off / on, "peak_visibility_ms": _median_ms(times["peak_visibility"]),
+                    "peak_shading_ms": _median_ms(times["peak_shading"]),
+                    "frame_ms_on_one_thread": _median_ms(times["frame_peaks_one_thread"]),
+                    "bytes_blockers": 0 if src is None else int(src.bytes())}
+
     precision_rows = {}
     for p, g in prec_graphs.items():
         pb = initializer_bytes(g.path)
@@ -312,6 +349,7 @@ def run(args: argparse.Namespace) -> int:
         "precisions": precision_rows, "crowd": crowd_rows,
         "batched_character_fps": crowd_rows[str(args.batch)]["character_fps"], "batch": args.batch,
         "raytrace_ms": raytrace_ms, "raytrace_n_rays": n_rays, "speedup_vs_raytrace": speedup,
+        "peaks": peak_row,
     }
     if args.scaling:
         out["scaling"] = _scaling(run, player, args, bw, gemm, console, tmp.name)
@@ -319,12 +357,35 @@ def run(args: argparse.Namespace) -> int:
         out["scaling"]["plot"] = str(args.plot)
     player.close()
     split.close()
+    if with_peaks is not None:
+        with_peaks.close()
     tmp.cleanup()
     if args.json:
         print(json.dumps(out, indent=2, sort_keys=True))
         return 0
     _print_tables(out)
     return 0
+
+
+def _peak_frame(with_peaks: Any, without: Any, loc: np.ndarray) -> dict[str, float]:
+    """Seconds of one whole frame of ``loc (1, J, 4, 4)`` with the peaks' term (``with_peaks.compute``: posing, the
+    fused call, the peaks' visibility and shading) and of the same frame without it (``without``: posing and the
+    fused call), then of the peaks' two parts alone on the posed frame, then of the frame with the peak kernels on
+    one thread (``Player.peak_threads``)."""
+    t0 = time.perf_counter()
+    state, _ = with_peaks.compute(loc)
+    t1 = time.perf_counter()
+    without.shade(without.pose(loc), checked=False)
+    t2 = time.perf_counter()
+    vis = with_peaks.peak_visibility(state)
+    t3 = time.perf_counter()
+    with_peaks.shade_peaks(state, vis)
+    t4 = time.perf_counter()
+    with_peaks.peak_threads = False  # the peak kernels on the calling thread alone
+    with_peaks.compute(loc)
+    with_peaks.peak_threads = True
+    return {"frame_peaks": t1 - t0, "frame_no_peaks": t2 - t1, "peak_visibility": t3 - t2, "peak_shading": t4 - t3,
+            "frame_peaks_one_thread": time.perf_counter() - t4}
 
 
 def _precision_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, device: str) -> dict[str, Any]:
@@ -560,6 +621,15 @@ def _print_tables(out: dict[str, Any]) -> None:
             t.add_row(f"crowd {n} in calls of {r['chunk']} ({r['chunked_character_fps']:.0f} character-frames/s)",
                       f"{r['chunked_call_ms']:.2f}", f"{r['bound_ms']:.2f}",
                       f"{r['bound_ms'] / r['chunked_call_ms']:.2f}", "", "", "")
+    pk = out.get("peaks")
+    if pk:
+        t.add_row(f"frame with {pk['n_peaks']} peak(s) ({pk['kind'] or 'no blockers'}): {pk['fps_on']:.0f} frames/s "
+                  f"vs {pk['fps_off']:.0f} without, ratio {pk['ratio']:.2f}", f"{pk['frame_ms_on']:.3f}", "", "", "",
+                  "", "")
+        t.add_row(f"  peak kernels on one thread: {1e3 / pk['frame_ms_on_one_thread']:.0f} frames/s",
+                  f"{pk['frame_ms_on_one_thread']:.3f}", "", "", "", "", "")
+        t.add_row(f"  peak visibility / peak shading (frame without peaks {pk['frame_ms_off']:.3f} ms)",
+                  f"{pk['peak_visibility_ms']:.3f} / {pk['peak_shading_ms']:.3f}", "", "", "", "", "")
     t.add_row(f"Embree ray trace ({out['raytrace_n_rays']} rays/vertex) + shading; speed-up",
               f"{out['raytrace_ms']:.0f}", "", f"{out['speedup_vs_raytrace']:.0f}x", "", "", "")
     if "scaling" in out:

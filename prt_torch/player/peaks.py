@@ -154,9 +154,10 @@ class PeakVisibility:
         raise NotImplementedError
 
     def vertex_last(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None,
-                    directions: np.ndarray, angular_radii: np.ndarray) -> np.ndarray:
+                    directions: np.ndarray, angular_radii: np.ndarray, threads: bool = True) -> np.ndarray:
         """The same ``(B, V, P)`` from the player's vertex-last ``positions, normals (B, 3, V)``
-        (:class:`~prt_torch.player.posing.PoseBatch` rows)."""
+        (:class:`~prt_torch.player.posing.PoseBatch` rows); ``threads``: a compiled kernel's numba threads
+        (``False``: the calling thread only)."""
         pos, nrm = (np.ascontiguousarray(np.swapaxes(x, 1, 2)) for x in (positions, normals))
         return self(pos, nrm, skin, directions, angular_radii)
 
@@ -223,13 +224,13 @@ class SpherePeaks(PeakVisibility):
                                       np.asarray(angular_radii, dtype=np.float32)).astype(np.float32, copy=False)
 
     def vertex_last(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None,
-                    directions: np.ndarray, angular_radii: np.ndarray) -> np.ndarray:
+                    directions: np.ndarray, angular_radii: np.ndarray, threads: bool = True) -> np.ndarray:
         """The player's path: :func:`sphere_visibility_soa` (the same kernel fused per vertex, vertex-last input)."""
         from prt_torch.blockers.spheres import pose_spheres
 
         check(skin is not None, f"{self.kind} peak visibility needs the skinning matrices (a skinned character)")
         return sphere_visibility_soa(positions, normals, pose_spheres(self.spheres, skin), self.spheres.radius,
-                                     directions, angular_radii)
+                                     directions, angular_radii, threads=threads)
 
     def bytes(self) -> int:
         return int(self.spheres.center.nbytes + self.spheres.radius.nbytes + self.spheres.bone.nbytes)
@@ -419,11 +420,107 @@ _peak_geometry = numba.njit(cache=True, nogil=True, parallel=True)(_peak_geometr
 _peak_geometry_serial = numba.njit(cache=True, nogil=True)(_peak_geometry_py)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _brdf_shape(model: int, prm: np.ndarray, ix: float, iy: float, iz: float, ox: float, oy: float,
+                oz: float) -> float:  # pragma: no cover (compiled)
+    """The analytic BRDFs' scalar shapes (:mod:`prt_torch.brdf.analytic`, the same formulas; both directions unit and
+    above the horizon): ``model`` 0 Lambert, 1 Phong ``(e, kd, ks)``, 2 Cook-Torrance ``(alpha, f0, kd, ks)``, 3 Ward
+    ``(alpha, kd, ks)``, 4 Blinn-Phong ``(e, kd, ks, norm)``."""
+    if model == 0:
+        return 1.0 / math.pi
+    if model == 1:
+        c = max(-ix * ox - iy * oy + iz * oz, 0.0)
+        return prm[1] / math.pi + prm[2] * (prm[0] + 2.0) / (2.0 * math.pi) * c ** prm[0]
+    hx, hy, hz = ix + ox, iy + oy, iz + oz
+    hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if hn > 0:
+        hx, hy, hz = hx / hn, hy / hn, hz / hn
+    if model == 2:
+        a2 = prm[0] * prm[0]
+        ch = max(hz, 0.0)
+        d = a2 / (math.pi * (ch * ch * (a2 - 1.0) + 1.0) ** 2)
+        g = (2.0 * iz / (iz + math.sqrt(a2 + (1.0 - a2) * iz * iz))) * \
+            (2.0 * oz / (oz + math.sqrt(a2 + (1.0 - a2) * oz * oz)))
+        f = prm[1] + (1.0 - prm[1]) * (1.0 - min(max(ix * hx + iy * hy + iz * hz, 0.0), 1.0)) ** 5
+        return prm[2] / math.pi + prm[3] * d * g * f / (4.0 * iz * oz)
+    if model == 3:
+        c2 = max(hz, 1e-12) ** 2
+        a2 = prm[0] * prm[0]
+        return prm[1] / math.pi + prm[2] * math.exp(-((1.0 - c2) / c2) / a2) / (4.0 * math.pi * a2
+                                                                                 * math.sqrt(iz * oz))
+    return prm[1] / math.pi + prm[2] * prm[3] * max(hz, 0.0) ** prm[0]
+
+
+def _peak_shading_py(frames: np.ndarray, view: np.ndarray, directions: np.ndarray, powers: np.ndarray,
+                     visibility: np.ndarray, model: int, prm: np.ndarray,
+                     out: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """:func:`peak_shading_soa`'s whole computation for the analytic BRDFs :func:`_brdf_shape` knows (``powers``
+    times the BRDF's tint), one pass per (character, vertex)."""
+    n_b, _, n_v = frames.shape
+    n_p = directions.shape[0]
+    for bv in numba.prange(n_b * n_v):
+        b, v = bv // n_v, bv % n_v
+        vx, vy, vz = view[b, 0, v], view[b, 1, v], view[b, 2, v]
+        f = frames[b, :, v]
+        ox = f[0] * vx + f[1] * vy + f[2] * vz
+        oy = f[3] * vx + f[4] * vy + f[5] * vz
+        oz = f[6] * vx + f[7] * vy + f[8] * vz
+        r, g, bl = 0.0, 0.0, 0.0
+        if oz > 0:
+            on = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
+            ox, oy, oz = ox * on, oy * on, oz * on
+            for p in range(n_p):
+                vis = visibility[b, v, p]
+                if vis <= 0:
+                    continue
+                lx, ly, lz = directions[p, 0], directions[p, 1], directions[p, 2]
+                iz = f[6] * lx + f[7] * ly + f[8] * lz
+                if iz <= 0:
+                    continue
+                ix = f[0] * lx + f[1] * ly + f[2] * lz
+                iy = f[3] * lx + f[4] * ly + f[5] * lz
+                inn = 1.0 / math.sqrt(ix * ix + iy * iy + iz * iz)
+                ix, iy, iz = ix * inn, iy * inn, iz * inn
+                w = _brdf_shape(model, prm, ix, iy, iz, ox, oy, oz) * iz * vis
+                r += w * powers[p, 0]
+                g += w * powers[p, 1]
+                bl += w * powers[p, 2]
+        out[b, v, 0], out[b, v, 1], out[b, v, 2] = r, g, bl
+
+
+_peak_shading = numba.njit(cache=True, nogil=True, parallel=True)(_peak_shading_py)
+_peak_shading_serial = numba.njit(cache=True, nogil=True)(_peak_shading_py)
+
+
+def _compiled_brdf(brdf: Any) -> tuple[int, np.ndarray] | None:
+    """``(model, parameters)`` of :func:`_brdf_shape` for an analytic BRDF of exactly one of its classes, else
+    ``None`` (a subclass may change the shape: the generic path evaluates it)."""
+    from prt_torch.brdf.analytic import BlinnPhong, CookTorrance, Lambert, Phong, Ward
+
+    t = type(brdf)
+    if t is Lambert:
+        prm: tuple[float, ...] = (0.0,)
+        model = 0
+    elif t is Phong:
+        model, prm = 1, (brdf.exponent, brdf.kd, brdf.ks)
+    elif t is CookTorrance:
+        model, prm = 2, (brdf.alpha, brdf.f0, brdf.kd, brdf.ks)
+    elif t is Ward:
+        model, prm = 3, (brdf.alpha, brdf.kd, brdf.ks)
+    elif t is BlinnPhong:
+        model, prm = 4, (brdf.exponent, brdf.kd, brdf.ks, brdf.norm)
+    else:
+        return None
+    return model, np.asarray(prm, dtype=np.float64)
+
+
 def peak_shading_soa(frames: np.ndarray, view: np.ndarray, directions: np.ndarray, powers: np.ndarray,
                      visibility: np.ndarray, brdf: Any, threads: bool = True) -> np.ndarray:
     """:func:`prt_torch.brdf.direct.peak_radiance` for the player's vertex-last arrays: ``sum_p E_p f_r(l_p, v)
-    max(n . l_p, 0) V_p`` per vertex, the analytic ``brdf`` evaluated once on the (vertex, peak) pairs that receive
-    light (its shape and tint: :class:`prt_torch.brdf.analytic.BRDF`).
+    max(n . l_p, 0) V_p`` per vertex. The catalogue's BRDF classes (Lambert, Phong, Blinn-Phong, Cook-Torrance - the
+    glTF material's too -, Ward) in one compiled pass (:func:`_brdf_shape`, the same formulas); another
+    :class:`prt_torch.brdf.analytic.BRDF` evaluated once by its own shape on the (vertex, peak) pairs that receive
+    light.
 
     Args:
         frames: ``(B, 9, V)`` vertex frames (entry ``3i + j`` is ``F[i, j]``, rows ``t, b, n``, world).
@@ -449,6 +546,11 @@ def peak_shading_soa(frames: np.ndarray, view: np.ndarray, directions: np.ndarra
     check_shape(vis, (n_b, n_v, n_p), name="peak shading: peak visibility")
     out = np.zeros((n_b, n_v, 3), np.float32)
     if n_p == 0 or n_v == 0:
+        return out
+    compiled = _compiled_brdf(brdf)
+    if compiled is not None:  # one compiled pass, no temporaries
+        tinted = np.ascontiguousarray(e * np.asarray(brdf.tint, dtype=np.float64)[None, :])
+        (_peak_shading if threads else _peak_shading_serial)(f, vw, d, tinted, vis, compiled[0], compiled[1], out)
         return out
     wi, wo = np.empty((n_b * n_v * n_p, 3)), np.empty((n_b * n_v * n_p, 3))
     weight = np.empty(n_b * n_v * n_p)

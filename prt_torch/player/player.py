@@ -195,6 +195,9 @@ class Player:
         self.light_angle = 0.0
         self._lobe_dirs = self.lighting.dirs
         self._peak_dirs = self.peaks.directions  # (P, 3) world, turned by rotate_light
+        #: the compiled peak kernels' numba threads over vertices (``False``: the calling thread; the ``overlap`` mode
+        #: always runs the peaks' visibility on one thread, next to the model's worker)
+        self.peak_threads = True
         self._peak_brdfs: dict[str, Any] = {}
         # brdf None: the character's own material (a glTF character), else the catalogue's first (player.material)
         self.rpo: RPOTensors = select_rpo(self.bundle, brdf, material=self.shades_material)
@@ -453,7 +456,7 @@ class Player:
         fut = self._pool.submit(self._vis_overlap.run_unchecked, {"pose": feats})
         state = self.poser(local, self.eye, features=feats)
         t1 = time.perf_counter()
-        peak_vis = self._peak_visibility_raw(state) if self.peaks.peaks else None  # while the model runs
+        peak_vis = self._peak_visibility_raw(state, False) if self.peaks.peaks else None  # while the model runs
         t2 = time.perf_counter()
         vis = fut.result()[0]
         t3 = time.perf_counter()
@@ -468,20 +471,21 @@ class Player:
         return state, out
 
     # -- peak lights -----------------------------------------------------------------------------
-    def _peak_visibility_raw(self, state: PoseBatch) -> np.ndarray:
+    def _peak_visibility_raw(self, state: PoseBatch, threads: bool | None = None) -> np.ndarray:
         """``(B, V, P)`` peak visibility in the batch's own (posed) vertex order (a per-vertex kind: no permutation;
         ``exact`` traces the mesh in the original order, then is put in the posed one)."""
         dirs, radii = self._peak_dirs, self.peaks.angular_radii
         src = self.peak_source
+        threads = self.peak_threads if threads is None else threads
         if src is None:  # no blockers: the discs' share above each horizon only (no shadow)
             b = state.features.shape[0]
             return sphere_visibility_soa(state.in_order("positions", state.order), state.in_order("normals",
                                          state.order), np.zeros((b, 0, 3), np.float32), np.zeros(0, np.float32),
-                                         dirs, radii)
+                                         dirs, radii, threads=threads)
         if src.per_vertex:
             return src.vertex_last(state.in_order("positions", state.order), state.in_order("normals", state.order),
-                                   state.skin, dirs, radii)
-        vis = src.vertex_last(state.positions, state.normals, state.skin, dirs, radii)
+                                   state.skin, dirs, radii, threads=threads)
+        vis = src.vertex_last(state.positions, state.normals, state.skin, dirs, radii, threads=threads)
         return vis if state.order is None else np.ascontiguousarray(vis[:, state.order])
 
     def peak_visibility(self, state: PoseBatch) -> np.ndarray:
@@ -503,7 +507,7 @@ class Player:
         posed batch and its ``visibility (B, V, P)`` (original vertex order; :meth:`peak_brdf`, the directions
         turned with the light, ``v`` toward the eye of the batch's view directions)."""
         return peak_shading_soa(state.frames, state.view_dirs, self._peak_dirs, self.peaks.powers, visibility,
-                                self.peak_brdf())
+                                self.peak_brdf(), threads=self.peak_threads)
 
     def _with_peaks(self, state: PoseBatch, residual: np.ndarray, timer: FrameTimer | None,
                     raw_visibility: np.ndarray | None = None) -> np.ndarray:
@@ -518,7 +522,7 @@ class Player:
         vis = self._peak_visibility_raw(state) if raw_visibility is None else raw_visibility
         o = state.order
         term = peak_shading_soa(state.in_order("frames", o), state.in_order("view_dirs", o), self._peak_dirs,
-                                self.peaks.powers, vis, self.peak_brdf())  # in the posed order: no permutation in
+                                self.peaks.powers, vis, self.peak_brdf(), threads=self.peak_threads)  # posed order
         state.peak_visibility = self._to_original_of(state, vis)
         out = residual + self._to_original_of(state, term)
         if timer is not None:

@@ -36,3 +36,8 @@ def test_bench_play_json_roofline(tiny_run: Path, capsys: pytest.CaptureFixture[
     # a crowd's bound: weights once, per-character work N times (no more than N single frames, no less than one)
     assert d["crowd"]["1"]["bound_ms"] < d["crowd"]["3"]["bound_ms"] <= 3 * d["crowd"]["1"]["bound_ms"] * (1 + 1e-9)
     assert d["crowd"]["1"]["bound_ms"] == pytest.approx(f["bound_ms"])
+    # peak lights on vs off, side by side (the tiny run's sky has one peak, its sun)
+    pk = d["peaks"]
+    assert pk["n_peaks"] == 1 and pk["fps_on"] == pytest.approx(1e3 / pk["frame_ms_on"])
+    assert pk["ratio"] == pytest.approx(pk["frame_ms_off"] / pk["frame_ms_on"])
+    assert pk["peak_visibility_ms"] > 0 and pk["peak_shading_ms"] > 0 and pk["frame_ms_on_one_thread"] > 0

@@ -157,11 +157,20 @@ def test_compiled_kernels_match_the_library(peak_run: Path) -> None:
         assert 0.01 < float(((ref > 0.01) & (ref < 0.99)).mean())  # penumbrae and the horizon cut are exercised
         powers = np.array([[3.0, 2.5, 2.0], [1.0, 1.0, 1.2], [0.2, 0.3, 0.4]])
         view = np.ascontiguousarray(np.swapaxes(state.view_dirs, 1, 2))
-        for name in ("phong", "ggx", "lambert"):
-            brdf = builtin_brdf(name)
+        from prt_torch.brdf.analytic import Phong
+        from prt_torch.rig.material import DEFAULT_MATERIAL, material_brdf
+
+        class Tinted(Phong):  # a subclass: the generic path (its own shape), not the compiled formulas
+            pass
+
+        brdfs = [builtin_brdf(n) for n in ("phong", "ggx", "lambert", "ward", "blinn")]
+        brdfs += [material_brdf(DEFAULT_MATERIAL), Tinted(tint=[0.9, 0.5, 0.2], exponent=40.0, kd=0.2, ks=0.5)]
+        for brdf in brdfs:
             want = peak_radiance(state.frames_vx33(), view, d, powers, ref, brdf)
-            got = peak_shading_soa(state.frames, state.view_dirs, d, powers, ref, brdf)
-            np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6 * float(np.abs(want).max()))
+            for threads in (True, False):
+                got = peak_shading_soa(state.frames, state.view_dirs, d, powers, ref, brdf, threads=threads)
+                np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6 * float(np.abs(want).max()),
+                                           err_msg=brdf.name)
     finally:
         p.close()
 
