@@ -10,7 +10,11 @@ rendering):
 * ``scene_1``: one character, no floor (the scene machinery's overhead);
 * ``scene_1_floor``: one character on a 64 x 64 floor (SHEXP floor, half-space composition);
 * ``scene_2_floor``: two characters on the floor (``--scene``, default ``configs/scene2.yaml``: SHEXP of the other
-  character at each character's vertices too).
+  character at each character's vertices too);
+* with peak lights (``--peaks``, default ``auto``: the sky's sun; the player and every scene shade the residual on
+  the SH path plus the peaks' term, :mod:`prt_torch.player.scene`): also ``scene_1_floor_no_peaks`` and
+  ``scene_2_floor_no_peaks``, the same scenes with ``--peaks 0`` (the whole lighting on the SH path, no peak
+  shadows), for the peaks' cost side by side.
 
 Reported: median ms and frames/s of each, the per-step medians of the scene ones (``pose``, ``characters``,
 ``ground``), and ``ratio_vs_player`` (frame time / the player's).
@@ -35,6 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", default=None, help="two-character scene YAML (default configs/scene2.yaml)")
     parser.add_argument("--clip", default=None, help="clip of the one-character scenes (default: held-out clip)")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    parser.add_argument("--peaks", default="auto", help="peak lights of every configuration: auto|0|K (default auto; "
+                                                        "not 0: the *_no_peaks scenes too)")
     parser.add_argument("--json", action="store_true", help="print the JSON only")
 
 
@@ -44,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch import limits
     from prt_torch.commands import _validate as V
     from prt_torch.player import Player
+    from prt_torch.player.peaks import check_peaks_arg
     from prt_torch.player.scene import SCENE_STEPS, ScenePlayer
     from prt_torch.player.timing import FrameTimer
     from prt_torch.rundir import RunDir
@@ -52,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
     limits.check_int(args.frames, "--frames", 1, 100_000)
     limits.check_int(args.threads, "--threads", 1, limits.MAX_THREADS)
+    peaks = check_peaks_arg(args.peaks)
     V.input_dir(args.run, "run directory")
     scene_path = args.scene or str(Path(__file__).resolve().parents[2] / "configs" / "scene2.yaml")
     V.input_file(scene_path, "--scene")
@@ -62,11 +70,15 @@ def run(args: argparse.Namespace) -> int:
     one = scene_from_dict({"characters": [{"clip": clip}]})
     one_floor = scene_from_dict({"ground": {}, "characters": [{"clip": clip}]})
     two_floor = two if two.ground is not None else two.model_copy(update={"ground": one_floor.ground})
-    kw = {"threads": args.threads, "window_size": (240, 320)}
-    player = Player(run_dir, graph="split", threads=args.threads)
+    kw: dict[str, Any] = {"threads": args.threads, "window_size": (240, 320), "peaks": peaks}
+    player = Player(run_dir, graph="split", threads=args.threads, peaks=peaks)
     scenes = {"scene_1": ScenePlayer(run_dir, scene=one, **kw), "scene_1_floor": ScenePlayer(run_dir, scene=one_floor,
                                                                                                **kw),
               "scene_2_floor": ScenePlayer(run_dir, scene=two_floor, clip=clip, **kw)}
+    if peaks != 0:
+        kw0 = {**kw, "peaks": 0}
+        scenes["scene_1_floor_no_peaks"] = ScenePlayer(run_dir, scene=one_floor, **kw0)
+        scenes["scene_2_floor_no_peaks"] = ScenePlayer(run_dir, scene=two_floor, clip=clip, **kw0)
     try:
         locals_ = player.clip_locals(clip, scenes["scene_1"].fps)
         n = min(args.frames, min(sp.n_frames for sp in scenes.values()), len(locals_))
@@ -77,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         player.compute(locals_[:1])
         for i in range(n):
             t0 = time.perf_counter()
-            player.shade(player.pose(locals_[i:i + 1]), checked=False)
+            player.compute(locals_[i:i + 1])
             p_secs.append(time.perf_counter() - t0)
             for name, sp in scenes.items():
                 t0 = time.perf_counter()
@@ -85,13 +97,14 @@ def run(args: argparse.Namespace) -> int:
                 timers[name].add("frame", time.perf_counter() - t0)
         p_ms = float(np.median(p_secs) * 1e3)
         out: dict[str, Any] = {"run": str(run_dir.path), "clip": clip, "frames": n, "scene_file": scene_path,
-                               "player": {"ms": p_ms, "fps": 1e3 / p_ms}}
+                               "player": {"ms": p_ms, "fps": 1e3 / p_ms, "peaks": len(player.peaks.peaks)}}
         for name, sp in scenes.items():
             s = timers[name].summary(("frame",))
             ms = s["compute_ms_median"]
             out[name] = {"ms": ms, "fps": 1e3 / ms, "ratio_vs_player": ms / p_ms,
                          "characters": len(sp.actors), "ground_vertices": 0 if sp.ground is None else
                          sp.ground.n_vertices, "vertices": int(sum(a.character.num_vertices for a in sp.actors)),
+                         "peaks": sp.n_peaks, "peak_visibility": sp.peak_kind,
                          "steps_ms": {k: s["steps_ms"][k]["median"] for k in SCENE_STEPS if k in s["steps_ms"]}}
     finally:
         player.close()
