@@ -40,4 +40,4 @@ def test_bench_play_json_roofline(tiny_run: Path, capsys: pytest.CaptureFixture[
     pk = d["peaks"]
     assert pk["n_peaks"] == 1 and pk["fps_on"] == pytest.approx(1e3 / pk["frame_ms_on"])
     assert pk["ratio"] == pytest.approx(pk["frame_ms_off"] / pk["frame_ms_on"])
-    assert pk["peak_visibility_ms"] > 0 and pk["peak_shading_ms"] > 0 and pk["frame_ms_on_one_thread"] > 0
+    assert pk["peak_visibility_ms"] > 0 and pk["peak_shading_ms"] > 0 and pk["frame_ms_on_numba_threads"] > 0
