@@ -483,9 +483,15 @@ class Player:
             return sphere_visibility_soa(state.in_order("positions", state.order), state.in_order("normals",
                                          state.order), np.zeros((b, 0, 3), np.float32), np.zeros(0, np.float32),
                                          dirs, radii, threads=threads)
-        if src.per_vertex:
-            return src.vertex_last(state.in_order("positions", state.order), state.in_order("normals", state.order),
-                                   state.skin, dirs, radii, threads=threads)
+        if src.per_vertex:  # in a compact order (the posed one, else the export's cluster-sorted one): the kernel
+            o = state.order if state.order is not None else self.vertex_order  # culls spheres per vertex block
+            vis = src.vertex_last(state.in_order("positions", o), state.in_order("normals", o), state.skin, dirs, radii,
+                                  threads=threads)
+            if o is state.order:
+                return vis
+            back = np.empty_like(vis)
+            back[:, o] = vis
+            return back
         vis = src.vertex_last(state.positions, state.normals, state.skin, dirs, radii, threads=threads)
         return vis if state.order is None else np.ascontiguousarray(vis[:, state.order])
 
