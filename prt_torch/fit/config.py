@@ -127,9 +127,9 @@ class PeakFitConfig(BaseModel):
     widen_deg: float = Field(default=4.0, ge=0.05, le=30.0)
     anneal: float = Field(default=0.6, gt=0, le=1.0)
     eval_frames: int = Field(default=16, ge=1, le=L.MAX_FRAMES)
-    #: learned spheres (``None``: the run's ``bake.blockers``). 64 measured on the demo character (held-out wave, 1-degree
-    #: discs, share of vertex-disc pairs on the wrong side of 0.5): rest spheres 48 / 64 / 96: 2.9 / 3.0 / 3.5 %,
-    #: learned 48 (300 steps) / 64 (400) / 96 (400): 1.6 / 1.3 / 1.3 %; 800 steps do not improve 64's
+    #: learned spheres (``None``: the run's ``bake.blockers``). 64 measured on the demo character (held-out wave,
+    #: 1-degree discs, share of vertex-disc pairs on the wrong side of 0.5): rest spheres 48 / 64 / 96: 2.9 / 3.0 /
+    #: 3.5 %, learned 48 (300 steps) / 64 (400) / 96 (400): 1.6 / 1.3 / 1.3 %; 800 steps do not improve 64's
     spheres: int | None = Field(default=64, ge=1, le=1024)
 
 
