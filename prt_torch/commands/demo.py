@@ -290,7 +290,8 @@ def _peak_visibilities(player: Any, ds: Any, state: Any) -> dict[str, np.ndarray
     :data:`TRUTH_DISC_SIDE` squared samples of the disc),
     ``model`` the player's (:attr:`~prt_torch.player.player.Player.peak_source`), ``unshadowed`` none (the disc's
     share above the horizon). ``{}`` without peaks."""
-    from prt_torch.player.peaks import ExactPeaks, sphere_visibility_soa
+    from prt_torch.blockers.cones import sphere_visibility_soa
+    from prt_torch.player.peaks import ExactPeaks
 
     if not player.peaks.peaks:
         return {}

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from prt_torch.blockers.cones import sphere_visibility_soa
 from prt_torch.errors import PrtError, check, warn
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility
@@ -57,7 +58,6 @@ from prt_torch.player.peaks import (
     load_peak_lighting,
     peak_shading_soa,
     peak_visibility,
-    sphere_visibility_soa,
 )
 from prt_torch.player.posing import PoseBatch, Poser
 from prt_torch.player.timing import FrameTimer

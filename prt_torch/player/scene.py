@@ -71,10 +71,10 @@ def blockers_path(run: RunDir) -> Path | None:
 
 def compiled_kernel(positions: np.ndarray, normals: np.ndarray, centers: np.ndarray, radii: np.ndarray,
                     directions: np.ndarray, angular_radii: np.ndarray) -> np.ndarray:
-    """The player's compiled cone-sphere kernel (:func:`prt_torch.player.peaks.sphere_visibility_soa`, the same
+    """The player's compiled cone-sphere kernel (:func:`prt_torch.blockers.cones.sphere_visibility_soa`, the same
     numbers as :func:`prt_torch.blockers.cones.sphere_peak_visibility`) with the latter's signature, ``(V, 3)`` or
     ``(B, V, 3)`` receivers (a :data:`prt_torch.scene.peaks.Kernel`)."""
-    from prt_torch.player.peaks import sphere_visibility_soa
+    from prt_torch.blockers.cones import sphere_visibility_soa
 
     one = np.ndim(positions) == 2
     pos = np.asarray(positions)[None] if one else np.asarray(positions)

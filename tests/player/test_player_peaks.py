@@ -136,11 +136,11 @@ def test_the_split_conserves_the_energy_of_an_unoccluded_vertex(peak_run: Path) 
 def test_compiled_kernels_match_the_library(peak_run: Path) -> None:
     """The player's fused per-vertex kernels vs :func:`~prt_torch.blockers.cones.sphere_peak_visibility` and
     :func:`~prt_torch.brdf.direct.peak_radiance` (several peaks, sun-sized to wide discs, three BRDFs)."""
-    from prt_torch.blockers.cones import sphere_peak_visibility
+    from prt_torch.blockers.cones import sphere_peak_visibility, sphere_visibility_soa
     from prt_torch.blockers.spheres import pose_spheres
     from prt_torch.brdf.direct import peak_radiance
     from prt_torch.brdf.rpo import builtin_brdf
-    from prt_torch.player.peaks import peak_shading_soa, sphere_visibility_soa
+    from prt_torch.player.peaks import peak_shading_soa
 
     p = Player(peak_run, brdf="phong", graph="split")
     try:
