@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.blockers.cones import sphere_visibility_soa
+from prt_torch.brdf.direct import peak_radiance_soa
 from prt_torch.errors import PrtError, check, warn
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility
@@ -56,7 +57,6 @@ from prt_torch.player.peaks import (
     PeakVisibility,
     learned_blockers_path,
     load_peak_lighting,
-    peak_shading_soa,
     peak_visibility,
 )
 from prt_torch.player.posing import PoseBatch, Poser
@@ -513,7 +513,7 @@ class Player:
         """``(B, V, 3)`` float32 radiance of the peak lights, ``sum_p E_p f_r(l_p, v) max(n . l_p, 0) V_p``, for a
         posed batch and its ``visibility (B, V, P)`` (original vertex order; :meth:`peak_brdf`, the directions
         turned with the light, ``v`` toward the eye of the batch's view directions)."""
-        return peak_shading_soa(state.frames, state.view_dirs, self._peak_dirs, self.peaks.powers, visibility,
+        return peak_radiance_soa(state.frames, state.view_dirs, self._peak_dirs, self.peaks.powers, visibility,
                                 self.peak_brdf(), threads=self.peak_threads)
 
     def _with_peaks(self, state: PoseBatch, residual: np.ndarray, timer: FrameTimer | None,
@@ -528,7 +528,7 @@ class Player:
         t0 = time.perf_counter()
         vis = self._peak_visibility_raw(state) if raw_visibility is None else raw_visibility
         o = state.order
-        term = peak_shading_soa(state.in_order("frames", o), state.in_order("view_dirs", o), self._peak_dirs,
+        term = peak_radiance_soa(state.in_order("frames", o), state.in_order("view_dirs", o), self._peak_dirs,
                                 self.peaks.powers, vis, self.peak_brdf(), threads=self.peak_threads)  # posed order
         state.peak_visibility = self._to_original_of(state, vis)
         out = residual + self._to_original_of(state, term)

@@ -138,9 +138,8 @@ def test_compiled_kernels_match_the_library(peak_run: Path) -> None:
     :func:`~prt_torch.brdf.direct.peak_radiance` (several peaks, sun-sized to wide discs, three BRDFs)."""
     from prt_torch.blockers.cones import sphere_peak_visibility, sphere_visibility_soa
     from prt_torch.blockers.spheres import pose_spheres
-    from prt_torch.brdf.direct import peak_radiance
+    from prt_torch.brdf.direct import peak_radiance, peak_radiance_soa
     from prt_torch.brdf.rpo import builtin_brdf
-    from prt_torch.player.peaks import peak_shading_soa
 
     p = Player(peak_run, brdf="phong", graph="split")
     try:
@@ -165,10 +164,21 @@ def test_compiled_kernels_match_the_library(peak_run: Path) -> None:
 
         brdfs = [builtin_brdf(n) for n in ("phong", "ggx", "lambert", "ward", "blinn")]
         brdfs += [material_brdf(DEFAULT_MATERIAL), Tinted(tint=[0.9, 0.5, 0.2], exponent=40.0, kd=0.2, ks=0.5)]
+        fr = state.frames_vx33().astype(np.float64)  # (B, V, 3, 3) rows t, b, n
+        wo = np.einsum("bvij,bvj->bvi", fr, view.astype(np.float64))
+        wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
         for brdf in brdfs:
-            want = peak_radiance(state.frames_vx33(), view, d, powers, ref, brdf)
+            # independently: the analytic BRDF object (numpy) on every (vertex, peak) pair, summed by hand
+            want = np.zeros(wo.shape)
+            for k in range(len(d)):
+                wi = np.einsum("bvij,j->bvi", fr, d[k])
+                wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+                f_r = brdf(wi.reshape(-1, 3), wo.reshape(-1, 3)).reshape(wo.shape)
+                want += f_r * np.maximum(wi[..., 2:3], 0.0) * ref[..., k:k + 1] * powers[k]
+            np.testing.assert_allclose(peak_radiance(fr, view, d, powers, ref, brdf), want, rtol=1e-4,
+                                       atol=1e-6 * float(np.abs(want).max()), err_msg=brdf.name)
             for threads in (True, False):
-                got = peak_shading_soa(state.frames, state.view_dirs, d, powers, ref, brdf, threads=threads)
+                got = peak_radiance_soa(state.frames, state.view_dirs, d, powers, ref, brdf, threads=threads)
                 np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6 * float(np.abs(want).max()),
                                            err_msg=brdf.name)
     finally:
