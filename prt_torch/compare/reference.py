@@ -402,12 +402,13 @@ class CompareLights:
 
 
 def compare_lights(light: str, env: str | Path | None, order: int, peaks: int | str = "auto",
-                   residual_window: bool = True, sun_size: float | None = None,
+                   residual_window: bool | None = None, sun_size: float | None = None,
                    sun_power: float | None = None) -> CompareLights:
     """The :class:`CompareLights` of ``prt compare --light LIGHT [--env FILE] --peaks auto|0|K``.
 
     * ``sky``: the player's lighting (``env`` or the procedural sky + its sun); peaks + residual by
-      :func:`prt_torch.player.peaks.load_peak_lighting` (``residual_window``: its sinc window on the residual); the
+      :func:`prt_torch.player.peaks.load_peak_lighting` (``residual_window``: its sinc window on the residual, default
+      the player's :data:`~prt_torch.player.peaks.RESIDUAL_WINDOW`); the
       reference is the split (``peaks=0``: the ``"auto"`` split, so that every ``--peaks`` is scored against the same
       low-noise reference).
     * ``sun``: :func:`light_spec`'s base (``env`` or the sky without its sun) + its sun disk; the disk is the peak,
@@ -416,9 +417,10 @@ def compare_lights(light: str, env: str | Path | None, order: int, peaks: int | 
     """
     from prt_torch.light.envmap import envmap_to_sh
     from prt_torch.player.lighting import lighting_from_sh, load_lighting
-    from prt_torch.player.peaks import AUTO, check_peaks_arg, load_peak_lighting, load_split
+    from prt_torch.player.peaks import AUTO, RESIDUAL_WINDOW, check_peaks_arg, load_peak_lighting, load_split
     from prt_torch.sg.split import PeakLight
 
+    residual_window = RESIDUAL_WINDOW if residual_window is None else bool(residual_window)
     k = check_peaks_arg(peaks)
     check(light in LIGHTS, f"--light must be one of {', '.join(LIGHTS)}, got {light!r}")
     if light == "sky":

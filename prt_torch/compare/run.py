@@ -43,8 +43,6 @@ PEAKS_SEP = "+peaks_"
 PEAKS_TRUTH = f"{TRUTH}{PEAKS_SEP}exact"
 #: default peak kinds of every visibility method (those the run has), plus ``exact`` for ``sh_truth``
 DEFAULT_PEAK_KINDS = ("spheres", "learned")
-#: the sinc window on the ``+peaks`` rows' residual lighting (measured on the demo run, docs in prt_torch.compare)
-RESIDUAL_WINDOW = False
 
 
 def load_compare_run(run_dir: str | Path | RunDir, dataset: str | Path | None = None, threads: int = 2) -> CompareRun:
@@ -261,7 +259,8 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
         peak_kinds: the peak visibilities of the ``+peaks`` rows, each for every visibility method (default
             :data:`DEFAULT_PEAK_KINDS` the run has, + ``exact`` for ``sh_truth``; ``sh_truth+peaks_exact`` is always
             a row when there are peaks: the ``+peaks`` rows' truth).
-        residual_window: the sinc window on the ``+peaks`` rows' residual lighting (default :data:`RESIDUAL_WINDOW`).
+        residual_window: the sinc window on the ``+peaks`` rows' residual lighting (default the player's,
+            :data:`prt_torch.player.peaks.RESIDUAL_WINDOW`).
         silhouette: the silhouette rule (every row 0 at vertices facing away from the camera; ``False``: off, to
             measure what it changes).
     """
@@ -282,7 +281,7 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
     names = resolve(methods, ctx)
     fs = clip_frames(ctx, clip, max_frames) if clip else heldout_frames(ctx, max_frames)
     lights = compare_lights(light, env, ctx.order, peaks=peaks, sun_size=sun_size, sun_power=sun_power,
-                            residual_window=RESIDUAL_WINDOW if residual_window is None else bool(residual_window))
+                            residual_window=residual_window)
     spec, lighting = lights.spec, lights.lighting
     # the player's look: its BRDFs (the character's own material too) and its base colour, for every row and figure
     rpos, brdfs = player_brdfs(ctx.order, ctx.run, ctx.character)
