@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 #: the config of ``peak_run``: the built-in character at density 0.25 (~2.9k vertices), few frames, 4 recorded
-#: discs of 1 degree per frame with 3 x 3 rays each (stable: the peak tests rely on its shape)
+#: discs of 1 degree per frame with 3 x 3 rays each (stable: the peak tests rely on its shape); learned SPHERES (the
+#: tests read peak_blockers.npz as a sphere set; the capsules' fit is tested on its dataset in tests/fit)
 PEAK_CONFIG = {
     "name": "peaks",
     "character": {"source": "builtin", "density": 0.25, "fps": 10.0, "train_clips": ["stretch", "squat"],
@@ -19,7 +20,8 @@ PEAK_CONFIG = {
     "bake": {"order": 3, "n_rays": 64, "frames_per_task": 8, "seed": 0, "below_horizon": "zero", "blockers": 24,
              "peaks": {"directions": 4, "angular_radius_deg": 1.0, "disc_side": 3}},
     "train": {"kinds": ["linear"], "alphas": [1.0], "folds": 2, "cv_iter": 10, "max_iter": 20,
-              "peaks": {"steps": 60, "frames_per_step": 4, "vertices_per_step": 1024, "eval_frames": 6}},
+              "peaks": {"steps": 60, "frames_per_step": 4, "vertices_per_step": 1024, "eval_frames": 6,
+                        "blockers": "spheres"}},
 }
 
 

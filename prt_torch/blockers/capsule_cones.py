@@ -86,7 +86,17 @@ def _ray_segment_s(bb: float, cc: float, dd: float, ee: float) -> float:  # prag
 def _capsule_visibility_soa_py(positions: np.ndarray, normals: np.ndarray, ends_a: np.ndarray, ends_b: np.ndarray,
                                radii: np.ndarray, directions: np.ndarray, angular_radii: np.ndarray,
                                out: np.ndarray) -> None:  # pragma: no cover (compiled)
-    """:func:`capsule_visibility_soa`'s kernel (module doc)."""
+    """:func:`capsule_visibility_soa`'s kernel (module doc): per (character, block of :data:`_BLOCK` consecutive
+    vertices) and peak, the capsules that can reach the peak's cone from some vertex of the block, then per vertex
+    the exact closest point, overlap test and cap intersection against those only.
+
+    Culling (necessary conditions, so the same results as without it): with the block's centre ``m`` and radius
+    ``rho``, a capsule whose bounding sphere lies behind every vertex of the block along ``l`` is dropped; else the
+    sphere it stands for from a vertex ``p`` (centre ``c`` on the segment) meets the cone only if ``dist(c, line(p,
+    l)) <= r + (|c - p| + r) tan a`` (the sphere kernel's bound), and ``dist(segment, line(m, l))`` is at most
+    ``rho`` more while ``|c - p| <= max(|a - m|, |b - m|) + rho``: a capsule failing that bound for ``m`` fails
+    for every vertex of the block (a relative margin of 1e-4 covers rounding; ``a`` near ``pi / 2`` culls
+    nothing)."""
     n_b, _, n_v = positions.shape
     n_s, n_p = ends_a.shape[1], directions.shape[0]
     n_blk = (n_v + _BLOCK - 1) // _BLOCK
@@ -111,19 +121,29 @@ def _capsule_visibility_soa_py(positions: np.ndarray, normals: np.ndarray, ends_
             tan_a = sin_a / cos_a if alpha < 1.5 else math.inf
             cap_a = 4.0 * math.pi * math.sin(alpha / 2) ** 2
             n_c = 0
-            for s in range(n_s):  # the capsule's bounding sphere against the block's bounding sphere
+            for s in range(n_s):  # the capsule against the block's bounding sphere (_capsule_visibility_soa_py)
+                r = radii[s]
+                dx, dy, dz = ends_a[b, s, 0] - mx, ends_a[b, s, 1] - my, ends_a[b, s, 2] - mz
                 wx = ends_b[b, s, 0] - ends_a[b, s, 0]
                 wy = ends_b[b, s, 1] - ends_a[b, s, 1]
                 wz = ends_b[b, s, 2] - ends_a[b, s, 2]
-                r = radii[s] + 0.5 * math.sqrt(wx * wx + wy * wy + wz * wz)
-                ox = ends_a[b, s, 0] + 0.5 * wx - mx
-                oy = ends_a[b, s, 1] + 0.5 * wy - my
-                oz = ends_a[b, s, 2] + 0.5 * wz - mz
-                along = ox * lx + oy * ly + oz * lz
-                dist = math.sqrt(ox * ox + oy * oy + oz * oz)
-                perp = math.sqrt(max(dist * dist - along * along, 0.0))
-                reach = r + rho + (dist + rho + r) * tan_a
-                if along > -(r + rho) * (1 + 1e-4) - 1e-6 and perp <= reach * (1 + 1e-4) + 1e-6:
+                half = 0.5 * math.sqrt(wx * wx + wy * wy + wz * wz)
+                along = (dx + 0.5 * wx) * lx + (dy + 0.5 * wy) * ly + (dz + 0.5 * wz) * lz
+                if along <= -(r + half + rho) * (1 + 1e-4) - 1e-6:  # the bounding sphere behind the block
+                    continue
+                cc = wx * wx + wy * wy + wz * wz
+                bb_ = lx * wx + ly * wy + lz * wz
+                dd = lx * dx + ly * dy + lz * dz
+                ee = wx * dx + wy * dy + wz * dz
+                den = cc - bb_ * bb_
+                t = min(max((dd * bb_ - ee) / den, 0.0), 1.0) if den > 1e-12 * cc else 0.0
+                qx, qy, qz = dx + t * wx, dy + t * wy, dz + t * wz  # segment point nearest the axis line
+                q_along = qx * lx + qy * ly + qz * lz
+                perp = math.sqrt(max(qx * qx + qy * qy + qz * qz - q_along * q_along, 0.0))
+                far = max(math.sqrt(dx * dx + dy * dy + dz * dz),
+                          math.sqrt((dx + wx) ** 2 + (dy + wy) ** 2 + (dz + wz) ** 2))
+                reach = r + rho + (far + rho + r) * tan_a
+                if perp <= reach * (1 + 1e-4) + 1e-6:
                     cand[n_c] = s
                     n_c += 1
             for v in range(v0, v1):

@@ -37,7 +37,7 @@ from prt_torch.io import atomic_write_bytes, read_npz_with_meta
 from prt_torch.shapes import check_shape
 
 FORMAT = "prt_torch.capsules/1"
-DEFAULT_RADIUS_QUANTILE = 0.3
+DEFAULT_RADIUS_QUANTILE = 0.5
 DEFAULT_END_QUANTILE = 0.02
 
 
@@ -78,6 +78,17 @@ class CapsuleSet:
         """Spheres as degenerate capsules (``a == b`` = the centre)."""
         return cls(spheres.bone, spheres.center, spheres.center, spheres.radius, spheres.radius_quantile)
 
+    def spheres(self) -> SphereSet:
+        """The capsules as rows of spheres (for the consumers of a :class:`SphereSet`, e.g. another character's
+        blockers in a scene): per capsule ``1 + ceil(2 |b - a| / r)`` spheres of radius ``r`` evenly along the
+        segment (consecutive centres at most ``r / 2`` apart: no gap wider than 3% of the radius)."""
+        length = np.linalg.norm(self.b - self.a, axis=1)
+        n = 1 + np.ceil(2 * length / self.radius).astype(np.int64)
+        k = np.repeat(np.arange(self.num_capsules), n)
+        t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)) / np.maximum(np.repeat(n, n) - 1, 1)
+        center = self.a[k] + t[:, None].astype(np.float32) * (self.b[k] - self.a[k])
+        return SphereSet(self.bone[k], center, self.radius[k], self.radius_quantile)
+
     def to_bytes(self) -> bytes:
         """The ``.npz`` file content."""
         buf = io.BytesIO()
@@ -108,13 +119,14 @@ def _allot(counts: np.ndarray, total: int) -> np.ndarray:
     return alloc
 
 
-def _piece(points: np.ndarray, radius_quantile: float, end_quantile: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """One capsule ``(a, b, r)`` of a piece's vertices (module doc)."""
+def _piece(points: np.ndarray, radius_quantile: float, end_quantile: float,
+           axis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """One capsule ``(a, b, r)`` of a piece's vertices (module doc; ``axis``: the bone's, else the piece's own)."""
     m = points.mean(0)
     x = points - m
     if points.shape[0] < 2:
         return m, m, 0.0
-    u = np.linalg.svd(x, full_matrices=False)[2][0]
+    u = np.linalg.svd(x, full_matrices=False)[2][0] if axis is None else axis
     t = x @ u
     r = float(np.quantile(np.linalg.norm(x - t[:, None] * u, axis=1), radius_quantile))
     t0, t1 = float(np.quantile(t, end_quantile)) + r, float(np.quantile(t, 1 - end_quantile)) - r
@@ -163,11 +175,12 @@ def fit_capsules(character: Any, n_capsules: int | None = None, seed: int = 0,
             u = np.linalg.svd(x, full_matrices=False)[2][0]
             from sklearn.cluster import KMeans
 
+            axis = u
             labels = KMeans(n_clusters=min(k, len(pts)), n_init=3, random_state=seed).fit((x @ u)[:, None]).labels_
         else:
-            labels = np.zeros(len(pts), np.int64)
+            axis, labels = None, np.zeros(len(pts), np.int64)
         for c in np.unique(labels):
-            a, b, r = _piece(pts[labels == c], radius_quantile, end_quantile)
+            a, b, r = _piece(pts[labels == c], radius_quantile, end_quantile, axis)
             bones.append(j)
             ends_a.append(a)
             ends_b.append(b)
@@ -192,3 +205,12 @@ def pose_capsules(capsules: CapsuleSet, skin_mats: np.ndarray) -> tuple[np.ndarr
     out = [np.einsum("...ij,...j->...i", mb[..., :3, :3], e.astype(np.float64)) + mb[..., :3, 3]
            for e in (capsules.a, capsules.b)]
     return out[0].astype(np.float32), out[1].astype(np.float32)
+
+
+def load_blocker_set(path: str | os.PathLike[str]) -> SphereSet | CapsuleSet:
+    """A :class:`CapsuleSet` or a :class:`SphereSet` file (``peak_blockers.npz`` holds either), by its format."""
+    from prt_torch.blockers.spheres import FORMAT as SPHERES
+
+    meta = read_npz_with_meta(path, "blocker set")[1]
+    check(meta.get("format") in (FORMAT, SPHERES), f"unsupported blocker set format {meta.get('format')!r}: {path}")
+    return CapsuleSet.load(path) if meta["format"] == FORMAT else SphereSet.load(path)

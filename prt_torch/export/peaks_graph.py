@@ -1,7 +1,8 @@
 """``peaks.onnx``: the learned peak visibility as an ONNX graph (issue 27; what onnxruntime-web runs in the page).
 
-The graph is :class:`prt_torch.models.peak_blockers.PeakBlockers` with the run's fitted spheres
-(``peak_blockers.npz``) as constants: inputs ``positions (B, V, 3)``, ``normals (B, V, 3)`` (posed, world),
+The graph is :class:`prt_torch.models.peak_blockers.PeakBlockers` with the run's fitted spheres or
+capsules (``peak_blockers.npz``, either kind: :func:`prt_torch.blockers.capsules.load_blocker_set`) as
+constants: inputs ``positions (B, V, 3)``, ``normals (B, V, 3)`` (posed, world),
 ``skin (B, J, 4, 4)`` (skinning matrices ``world @ inverse_bind``), ``directions (P, 3)`` (unit, towards the
 lights) and ``angular_radii (P,)`` (radians); output ``peak_visibility (B, V, P)`` in ``[0, 1]``. ``B``, ``V`` and
 ``P`` are dynamic (the overlapping (receiver, sphere, peak) triples are gathered with ``NonZero``).
@@ -24,9 +25,11 @@ from prt_torch.rundir import file_sha256
 PEAK_INPUTS = ("positions", "normals", "skin", "directions", "angular_radii")
 PEAK_OUTPUTS = ("peak_visibility",)
 #: bump when the graph's computation changes (the export stage key)
-PEAKS_GRAPH_VERSION = 1
-#: ORT vs torch relative tolerance: float32 trigonometry of the same formula, summed over a few spheres in logs
-PARITY_RTOL = 1e-4
+PEAKS_GRAPH_VERSION = 2
+#: ORT vs torch tolerance on the visible fractions (in [0, 1]): float32 trigonometry of the same formula, op
+#: orders differing between the runtimes; on the example's 0.265-degree discs the float32 rounding of a fraction is
+#: ~eps / r^2 at worst (eps ~ 6e-8, r in radians: 3e-3), measured on the demo's learned capsules 3e-4 (spheres 1e-4)
+PARITY_RTOL = 1e-3
 
 
 def example_peaks(n: int = 2, radius_deg: float = 0.265, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -38,8 +41,9 @@ def example_peaks(n: int = 2, radius_deg: float = 0.265, seed: int = 0) -> tuple
 
 def export_peak_graph(spheres: Any, path: Any, inputs: dict[str, np.ndarray], metadata: dict[str, Any] | None = None,
                       opset: int = 17, exporter: str = "torchscript") -> Any:
-    """Write the graph of ``spheres`` (a :class:`~prt_torch.blockers.spheres.SphereSet`) to ``path`` (atomic)
-    traced on ``inputs`` (:data:`PEAK_INPUTS`); returns the torch module."""
+    """Write the graph of ``spheres`` (a :class:`~prt_torch.blockers.spheres.SphereSet` or a
+    :class:`~prt_torch.blockers.capsules.CapsuleSet`) to ``path`` (atomic) traced on ``inputs``
+    (:data:`PEAK_INPUTS`); returns the torch module."""
     import torch
 
     from prt_torch.export.onnx_file import export_onnx
@@ -49,7 +53,8 @@ def export_peak_graph(spheres: Any, path: Any, inputs: dict[str, np.ndarray], me
     args = [torch.from_numpy(np.ascontiguousarray(inputs[k], dtype=np.float32)) for k in PEAK_INPUTS]
     dyn = {"positions": {0: "B", 1: "V"}, "normals": {0: "B", 1: "V"}, "skin": {0: "B"}, "directions": {0: "P"},
            "angular_radii": {0: "P"}, "peak_visibility": {0: "B", 1: "V", 2: "P"}}
-    meta = {**(metadata or {}), "prt.graph": "peaks", "prt.n_spheres": str(len(spheres.radius))}
+    meta = {**(metadata or {}), "prt.graph": "peaks", "prt.n_spheres": str(len(spheres.radius)),
+            "prt.blockers": module.kind}
     export_onnx(module, args, path, PEAK_INPUTS, PEAK_OUTPUTS, dyn, metadata=meta, opset=opset, exporter=exporter)
     return module
 
@@ -69,12 +74,12 @@ def ship_peaks(shipment: Shipment, inputs: ShipInputs) -> dict[str, Any] | None:
         return None
     import torch
 
-    from prt_torch.blockers.spheres import SphereSet
+    from prt_torch.blockers.capsules import load_blocker_set
     from prt_torch.export.onnx_file import initializer_bytes
     from prt_torch.export.parity import check_parity
 
     run = inputs.run
-    spheres = SphereSet.load(run.peak_blockers_path)
+    spheres = load_blocker_set(run.peak_blockers_path)
     held = inputs.held
     from prt_torch.bake.deformable import is_deformable
 
@@ -90,7 +95,8 @@ def ship_peaks(shipment: Shipment, inputs: ShipInputs) -> dict[str, Any] | None:
         par = check_parity(module, path, ex, rtol=PARITY_RTOL)
     inputs.log(f"  {path.name}: parity rel. error {par.rel_error:.2e} on {len(ex['positions'])} held-out poses")
     return {"graph_file": run.relative(path), "blockers_file": run.relative(run.peak_blockers_path),
-            "n_spheres": int(len(spheres.radius)), "inputs": list(PEAK_INPUTS), "outputs": list(PEAK_OUTPUTS),
+            "n_spheres": int(len(spheres.radius)), "blockers": module.kind, "inputs": list(PEAK_INPUTS),
+            "outputs": list(PEAK_OUTPUTS),
             "parity": {**par.as_dict(), "initializer_bytes": initializer_bytes(path), "file_bytes":
                        path.stat().st_size}}
 

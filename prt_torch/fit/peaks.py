@@ -4,8 +4,9 @@ visibility (``bake.peaks``: ``peak_directions``, ``peak_visibility`` per frame).
 * **Data**: the train split's frames, each with its posed positions, frame normals, skinning matrices (the bake's
   own plan of the recorded config, :func:`prt_torch.bake.plan.make_plan`: random poses included) and its ``D``
   recorded discs.
-* **Initialisation**: the run's blocker spheres (:func:`~prt_torch.blockers.spheres.fit_spheres`, ``bake.blockers``
-  of them), so the model starts as ``peaks_spheres``.
+* **Initialisation**: ``blockers = "spheres"``: rest-mesh spheres (:func:`~prt_torch.blockers.spheres.fit_spheres`,
+  ``n_spheres`` of them), so the model starts as ``peaks_spheres``; ``"capsules"``: one rest-mesh capsule per bone
+  with vertices (:func:`~prt_torch.blockers.capsules.fit_capsules`), each endpoint and radius then learned.
 * **Loss**: the mean squared error of the visible fractions over random batches (``frames_per_step`` frames, all
   their discs, ``vertices_per_step`` random vertices), Adam on each sphere's centre offset and log radius scale.
   The kernel's penumbra is the disc's, so a sun-sized disc has almost no gradient away from the shadow's edge: the
@@ -41,6 +42,7 @@ class PeakFitSettings:
     anneal: float = 0.6
     eval_frames: int = 16
     seed: int = 0
+    blockers: str = "spheres"
 
 
 @dataclass
@@ -111,10 +113,13 @@ def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows
     """Fit :class:`~prt_torch.models.peak_blockers.PeakBlockers` (module doc); returns ``(model, metrics)``."""
     import torch
 
+    from prt_torch.blockers.capsules import fit_capsules
     from prt_torch.blockers.spheres import fit_spheres
     from prt_torch.models.peak_blockers import PeakBlockers
 
     settings = settings or PeakFitSettings()
+    check(settings.blockers in ("spheres", "capsules"),
+          f"peak blockers must be 'spheres' or 'capsules', got {settings.blockers!r}")
     check(len(train_rows) > 0, "peak blockers: no baked train frames with peak visibility")
     t0 = time.perf_counter()
     train = load_peak_data(ds, character, train_rows)
@@ -122,7 +127,8 @@ def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows
     rng = np.random.default_rng(settings.seed)
     ev_idx = np.sort(rng.choice(len(ev.positions), min(settings.eval_frames, len(ev.positions)), replace=False))
     torch.manual_seed(settings.seed)
-    model = PeakBlockers(fit_spheres(character, min(int(n_spheres), int(character.num_vertices))))
+    model = PeakBlockers(fit_capsules(character) if settings.blockers == "capsules"
+                         else fit_spheres(character, min(int(n_spheres), int(character.num_vertices))))
     opt = torch.optim.Adam(model.parameters(), lr=settings.learning_rate)
     V = train.positions.shape[1]
     nv = min(settings.vertices_per_step, V)
@@ -156,7 +162,7 @@ def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows
     model.load_state_dict(best_state)
     if not np.isfinite(best["mean_abs_err"]):
         raise PrtError("peak blockers: the fit diverged (non-finite error)")
-    metrics = {"spheres": int(model.bone.shape[0]), "train_frames": int(len(train_rows)),
+    metrics = {"blockers": settings.blockers, "spheres": int(model.bone.shape[0]), "train_frames": int(len(train_rows)),
                "eval_frames": int(len(ev_idx)), "eval_split": "heldout" if len(eval_rows) else "train",
                "angular_radius_deg": math.degrees(train.angular_radius), "initial": initial, "learned": best,
                "history": history, "fit_s": time.perf_counter() - t0, "settings": settings.__dict__}

@@ -250,11 +250,17 @@ class LearnedPeaks(SpherePeaks):
 
     kind = "learned"
 
-    def __call__(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None, directions: np.ndarray,
-                 angular_radii: np.ndarray) -> np.ndarray:
+    def __init__(self, blockers: Any) -> None:
         from prt_torch.blockers.capsules import CapsuleSet
 
-        if not isinstance(self.spheres, CapsuleSet):
+        #: the learned capsules (``None``: spheres); :attr:`spheres` is then their row-of-spheres stand-in for the
+        #: consumers of a sphere set (another character's blockers in a scene, :mod:`prt_torch.player.scene`)
+        self.capsules = blockers if isinstance(blockers, CapsuleSet) else None
+        super().__init__(blockers.spheres() if self.capsules is not None else blockers)
+
+    def __call__(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None, directions: np.ndarray,
+                 angular_radii: np.ndarray) -> np.ndarray:
+        if self.capsules is None:
             return super().__call__(positions, normals, skin, directions, angular_radii)
         pos = np.asarray(positions, dtype=np.float32)
         check_shape(pos, "B V 3", name="learned peaks: positions")
@@ -265,19 +271,18 @@ class LearnedPeaks(SpherePeaks):
                     directions: np.ndarray, angular_radii: np.ndarray, threads: bool = True) -> np.ndarray:
         """The player's path: the sphere or the capsule kernel, compiled, on vertex-last input."""
         from prt_torch.blockers.capsule_cones import capsule_visibility_soa
-        from prt_torch.blockers.capsules import CapsuleSet, pose_capsules
+        from prt_torch.blockers.capsules import pose_capsules
 
-        if not isinstance(self.spheres, CapsuleSet):
+        if self.capsules is None:
             return super().vertex_last(positions, normals, skin, directions, angular_radii, threads)
         check(skin is not None, f"{self.kind} peak visibility needs the skinning matrices (a skinned character)")
-        a, b = pose_capsules(self.spheres, skin)
-        return capsule_visibility_soa(positions, normals, a, b, self.spheres.radius, directions, angular_radii,
+        a, b = pose_capsules(self.capsules, skin)
+        return capsule_visibility_soa(positions, normals, a, b, self.capsules.radius, directions, angular_radii,
                                       threads=threads)
 
     def bytes(self) -> int:
-        sp = self.spheres
-        return int(sum(np.asarray(getattr(sp, k)).nbytes for k in ("bone", "radius", "center", "a", "b")
-                       if hasattr(sp, k)))
+        c = self.capsules
+        return super().bytes() if c is None else int(c.a.nbytes + c.b.nbytes + c.radius.nbytes + c.bone.nbytes)
 
 
 def learned_blockers_path(run: Any) -> Path | None:

@@ -113,6 +113,16 @@ def test_numba_torch_and_onnx_agree(tmp_path: Path) -> None:
     assert_bitwise(soa, ref, why="the same compiled kernel on threads and on one thread, per-vertex independent")
     t64 = capsule_peak_visibility(*(torch.from_numpy(x) for x in (pos, nrm, a, b, r, d, ar))).numpy()
     np.testing.assert_allclose(t64, ref, atol=1e-9)
+    # compact blocks of 64 vertices (sorted along a line) and small capsules: the culling drops most of them, the
+    # results stay the uncull'd torch path's
+    order = np.argsort(pos[..., 0], axis=1)
+    srt = np.take_along_axis(pos, order[..., None], 1) * np.array([4.0, 0.5, 0.5])
+    nrt = np.take_along_axis(nrm, order[..., None], 1)
+    small = (a * 2, a * 2 + (b - a) * 0.5, r * 0.3)
+    got = capsule_peak_visibility(srt, nrt, *small, d, ar)
+    want = capsule_peak_visibility(*(torch.from_numpy(x) for x in (srt, nrt, *small, d, ar))).numpy()
+    assert 0.02 < (want < 0.999).mean() < 0.9
+    np.testing.assert_allclose(got, want, atol=1e-9)
     f32 = [torch.from_numpy(x.astype(np.float32)) for x in (pos, nrm, a, b, r, d, ar)]
     t32 = capsule_peak_visibility(*f32).numpy()
     assert np.abs(t32 - ref).max() < 1e-3
@@ -217,3 +227,21 @@ def test_bad_input_is_one_line() -> None:
         capsule_peak_visibility(pos, nrm, a, b[:, :2], r, d, ar)
     with pytest.raises(PrtError, match="capsule radii"):
         capsule_peak_visibility(pos, nrm, a, b, -r, d, ar)
+
+
+def test_the_row_of_spheres_stands_in_for_the_capsules(character) -> None:  # noqa: ANN001
+    caps = fit_capsules(character)
+    sph = caps.spheres()
+    rng = np.random.default_rng(7)
+    for k in range(caps.num_capsules):
+        mine = sph.bone == caps.bone[k]
+        cen, rad = sph.center[mine].astype(np.float64), sph.radius[mine].astype(np.float64)
+        a, b, r = caps.a[k].astype(np.float64), caps.b[k].astype(np.float64), float(caps.radius[k])
+        # inside the capsule: every sphere (centres on the segment, the capsule's radius)
+        t = np.clip((cen - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-30), 0, 1)
+        assert np.linalg.norm(cen - a - t[:, None] * (b - a), axis=1).max() < 1e-5 and np.allclose(rad, r)
+        # and they cover it but for a thin shell: points 0.96 r from a random point of the segment
+        u = rng.normal(size=(200, 3))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        p = a + rng.uniform(0, 1, (200, 1)) * (b - a) + 0.96 * r * u
+        assert (np.linalg.norm(p[:, None] - cen[None], axis=2) <= rad * (1 + 1e-6)).any(1).all()
