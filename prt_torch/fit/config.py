@@ -131,12 +131,17 @@ class PeakFitConfig(BaseModel):
     #: 1-degree discs, share of vertex-disc pairs on the wrong side of 0.5): rest spheres 48 / 64 / 96: 2.9 / 3.0 /
     #: 3.5 %, learned 48 (300 steps) / 64 (400) / 96 (400): 1.6 / 1.3 / 1.3 %; 800 steps do not improve 64's
     spheres: int | None = Field(default=64, ge=1, le=1024)
-    #: the blockers' kind: ``capsules`` (one per bone with vertices, :mod:`prt_torch.blockers.capsules`; ``spheres``
-    #: is then unused) or ``spheres``. Measured on the demo character (all 31 held-out wave frames x 4 one-degree
+    #: the blockers' kind: ``capsules`` (``capsules_per_bone`` per bone with vertices,
+    #: :mod:`prt_torch.blockers.capsules`; ``spheres`` is then unused) or ``spheres``. Measured on the demo character (all 31 held-out wave frames x 4 one-degree
     #: discs, share of vertex-disc pairs on the wrong side of 0.5 / mean abs. error): rest spheres 48: 2.80 % /
     #: 0.028, rest capsules 21: 1.53 % / 0.015, learned spheres 48 / 64 / 96: 1.55-1.69 / 1.32 / 1.23 % / 0.016 /
     #: 0.013 / 0.012, learned capsules 21 (400 steps): 1.14 % / 0.0115
     blockers: Literal["capsules", "spheres"] = "capsules"
+    #: capsules per bone with vertices (``blockers: capsules``; 1: one per bone, more: the bones with most vertices
+    #: split along their axes). Measured as above, learned (400 steps): 21 / 30 / 42 / 63 capsules (1 / 1.43 / 2 / 3
+    #: per bone): 1.14 / 1.00 / 0.94 / 0.99 % wrong side, 0.0115 / 0.0101 / 0.0095 / 0.0100 mean abs. error (the
+    #: rest capsules get worse with splits: 1.53 % at 1 per bone, 2.42 % at 2: the fit moves the pieces)
+    capsules_per_bone: float = Field(default=2.0, ge=1.0, le=8.0)
 
 
 class TrainConfig(BaseModel):

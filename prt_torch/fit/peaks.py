@@ -5,8 +5,10 @@ visibility (``bake.peaks``: ``peak_directions``, ``peak_visibility`` per frame).
   own plan of the recorded config, :func:`prt_torch.bake.plan.make_plan`: random poses included) and its ``D``
   recorded discs.
 * **Initialisation**: ``blockers = "spheres"``: rest-mesh spheres (:func:`~prt_torch.blockers.spheres.fit_spheres`,
-  ``n_spheres`` of them), so the model starts as ``peaks_spheres``; ``"capsules"``: one rest-mesh capsule per bone
-  with vertices (:func:`~prt_torch.blockers.capsules.fit_capsules`), each endpoint and radius then learned.
+  ``n_spheres`` of them), so the model starts as ``peaks_spheres``; ``"capsules"``: rest-mesh capsules
+  (:func:`~prt_torch.blockers.capsules.fit_capsules`), ``capsules_per_bone`` x the bones with vertices of them (one
+  per bone, the extra ones splitting the bones with most vertices along their axes), each endpoint and radius then
+  learned.
 * **Loss**: the mean squared error of the visible fractions over random batches (``frames_per_step`` frames, all
   their discs, ``vertices_per_step`` random vertices), Adam on each sphere's centre offset and log radius scale.
   The kernel's penumbra is the disc's, so a sun-sized disc has almost no gradient away from the shadow's edge: the
@@ -43,6 +45,7 @@ class PeakFitSettings:
     eval_frames: int = 16
     seed: int = 0
     blockers: str = "spheres"
+    capsules_per_bone: float = 1.0
 
 
 @dataclass
@@ -114,7 +117,7 @@ def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows
     import torch
 
     from prt_torch.blockers.capsules import fit_capsules
-    from prt_torch.blockers.spheres import fit_spheres
+    from prt_torch.blockers.spheres import fit_spheres, vertex_bones
     from prt_torch.models.peak_blockers import PeakBlockers
 
     settings = settings or PeakFitSettings()
@@ -127,8 +130,13 @@ def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows
     rng = np.random.default_rng(settings.seed)
     ev_idx = np.sort(rng.choice(len(ev.positions), min(settings.eval_frames, len(ev.positions)), replace=False))
     torch.manual_seed(settings.seed)
-    model = PeakBlockers(fit_capsules(character) if settings.blockers == "capsules"
-                         else fit_spheres(character, min(int(n_spheres), int(character.num_vertices))))
+    check(settings.capsules_per_bone >= 1.0, f"capsules per bone must be >= 1, got {settings.capsules_per_bone!r}")
+    if settings.blockers == "capsules":
+        n_bones = int(np.unique(vertex_bones(character.joints, character.weights)).size)
+        n_caps = min(round(settings.capsules_per_bone * n_bones), int(character.num_vertices))
+        model = PeakBlockers(fit_capsules(character, max(n_caps, n_bones), seed=settings.seed))
+    else:
+        model = PeakBlockers(fit_spheres(character, min(int(n_spheres), int(character.num_vertices))))
     opt = torch.optim.Adam(model.parameters(), lr=settings.learning_rate)
     V = train.positions.shape[1]
     nv = min(settings.vertices_per_step, V)

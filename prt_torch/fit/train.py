@@ -205,13 +205,13 @@ def fit_peaks(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) ->
     settings = PeakFitSettings(steps=pc.steps, frames_per_step=pc.frames_per_step,
                                vertices_per_step=pc.vertices_per_step, learning_rate=pc.learning_rate,
                                widen_deg=pc.widen_deg, anneal=pc.anneal, eval_frames=pc.eval_frames, seed=cfg.seed,
-                               blockers=pc.blockers)
+                               blockers=pc.blockers, capsules_per_bone=pc.capsules_per_bone)
     done = ds.done
     rows = {s: np.intersect1d(ds.split_rows(s), np.flatnonzero(done)) if s in ds.splits else np.zeros(0, np.int64)
             for s in ("train", "heldout")}
     n = pc.spheres if pc.spheres is not None else ds.bake_config().blockers
     character = ds.character()
-    what = "one capsule per bone" if pc.blockers == "capsules" else f"{n} spheres"
+    what = f"{pc.capsules_per_bone:g} capsules per bone" if pc.blockers == "capsules" else f"{n} spheres"
     log_progress(progress, f"peak blockers: fitting {what} to the exact peak visibility of "
                            f"{len(rows['train'])} frames ({settings.steps} steps)")
     model, metrics = fit_peak_blockers(ds, character, rows["train"], rows["heldout"], n, settings)

@@ -170,6 +170,7 @@ def test_learned_capsules_beat_the_rest_capsules_on_heldout_frames(peak_run: Pat
     visibility than the rest capsules it started from; the torch module agrees with that kernel."""
     from prt_torch.blockers.capsule_cones import capsule_peak_visibility
     from prt_torch.blockers.capsules import CapsuleSet, fit_capsules, load_blocker_set, pose_capsules
+    from prt_torch.blockers.spheres import vertex_bones
     from prt_torch.fit.peaks import PeakFitSettings, fit_peak_blockers
     from prt_torch.player.peaks import LearnedPeaks
 
@@ -177,15 +178,17 @@ def test_learned_capsules_beat_the_rest_capsules_on_heldout_frames(peak_run: Pat
     ch = ds.character()
     heldout = ds.split_rows("heldout")
     settings = PeakFitSettings(steps=60, frames_per_step=4, vertices_per_step=1024, eval_frames=6,
-                               blockers="capsules")
+                               blockers="capsules", capsules_per_bone=1.5)
     model, metrics = fit_peak_blockers(ds, ch, ds.split_rows("train"), heldout, 0, settings)
+    n_bones = np.unique(vertex_bones(ch.joints, ch.weights)).size
+    assert metrics["spheres"] == round(1.5 * n_bones) and np.bincount(model.bone.numpy()).max() >= 2
     assert metrics["blockers"] == "capsules" and metrics["learned"]["mean_abs_err"] < metrics["initial"][
         "mean_abs_err"]
     model.save(tmp_path / "peak_blockers.npz")
     learned = load_blocker_set(tmp_path / "peak_blockers.npz")
     assert isinstance(learned, CapsuleSet)
     assert isinstance(load_blocker_set(peak_run / "blockers.npz"), SphereSet)
-    rest = fit_capsules(ch)
+    rest = fit_capsules(ch, learned.num_capsules)
     rows = heldout[1::3]  # not all of them the fit's evaluation frames
     d = ds.rows(rows, ("positions", "frames", "peak_directions", "peak_visibility"))
     _, skin, _ = ds.row_poses(rows, ch)
