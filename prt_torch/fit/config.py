@@ -132,10 +132,11 @@ class PeakFitConfig(BaseModel):
     #: 3.5 %, learned 48 (300 steps) / 64 (400) / 96 (400): 1.6 / 1.3 / 1.3 %; 800 steps do not improve 64's
     spheres: int | None = Field(default=64, ge=1, le=1024)
     #: the blockers' kind: ``capsules`` (``capsules_per_bone`` per bone with vertices,
-    #: :mod:`prt_torch.blockers.capsules`; ``spheres`` is then unused) or ``spheres``. Measured on the demo character (all 31 held-out wave frames x 4 one-degree
-    #: discs, share of vertex-disc pairs on the wrong side of 0.5 / mean abs. error): rest spheres 48: 2.80 % /
-    #: 0.028, rest capsules 21: 1.53 % / 0.015, learned spheres 48 / 64 / 96: 1.55-1.69 / 1.32 / 1.23 % / 0.016 /
-    #: 0.013 / 0.012, learned capsules 21 (400 steps): 1.14 % / 0.0115
+    #: :mod:`prt_torch.blockers.capsules`; ``spheres`` is then unused) or ``spheres``. Measured on the demo
+    #: character (all 31 held-out wave frames x 4 one-degree discs, share of vertex-disc pairs on the wrong side of
+    #: 0.5 / mean abs. error): rest spheres 48: 2.80 % / 0.028, rest capsules 21: 1.53 % / 0.015, learned spheres
+    #: 48 / 64 / 96: 1.55-1.69 / 1.32 / 1.23 % / 0.016 / 0.013 / 0.012, learned capsules 21 (400 steps): 1.14 % /
+    #: 0.0115 (42: below)
     blockers: Literal["capsules", "spheres"] = "capsules"
     #: capsules per bone with vertices (``blockers: capsules``; 1: one per bone, more: the bones with most vertices
     #: split along their axes). Measured as above, learned (400 steps): 21 / 30 / 42 / 63 capsules (1 / 1.43 / 2 / 3
