@@ -28,12 +28,12 @@ to the compiled pass.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numba
 import numpy as np
 
-from prt_torch.blockers.cones import TINY, cap_intersection, cap_solid_angle, horizon_fraction
+from prt_torch.blockers.cones import TINY, cap_intersection, cap_lens, cap_solid_angle, horizon_fraction, is_tracing
 from prt_torch.errors import check
 from prt_torch.sh.basis import check_float_array, is_torch
 from prt_torch.shapes import check_shape
@@ -45,29 +45,6 @@ Array = TypeVar("Array", "np.ndarray", "torch.Tensor")
 
 #: vertices per block of the compiled kernel's capsule culling
 _BLOCK = 64
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _lens(a: float, b: float, gamma: float) -> float:  # pragma: no cover (compiled)
-    """Scalar :func:`~prt_torch.blockers.cones.cap_intersection` (the same half-angle and L'Huilier formulas and
-    clamps, float64)."""
-    lo = abs(a - b)
-    if gamma >= a + b:
-        return 0.0
-    if gamma <= lo:
-        m = min(a, b)
-        return 4.0 * math.pi * math.sin(m / 2) ** 2
-    s = (a + b + gamma) / 2
-    sa, sb, sg = max(s - a, 0.0), max(s - b, 0.0), max(s - gamma, 0.0)
-    sin_s = math.sin(s)
-    phi_a = 2.0 * math.atan2(math.sqrt(max(math.sin(sa) * math.sin(sg), TINY)),
-                             math.sqrt(max(sin_s * math.sin(sb), TINY)))
-    phi_b = 2.0 * math.atan2(math.sqrt(max(math.sin(sb) * math.sin(sg), TINY)),
-                             math.sqrt(max(sin_s * math.sin(sa), TINY)))
-    t = math.tan(s / 2) * math.tan(sa / 2) * math.tan(sb / 2) * math.tan(sg / 2)
-    excess = 4.0 * math.atan(math.sqrt(max(t, TINY)))
-    lens = 4.0 * phi_a * math.sin(a / 2) ** 2 + 4.0 * phi_b * math.sin(b / 2) ** 2 - 2.0 * excess
-    return max(lens, 0.0)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -157,7 +134,7 @@ def _capsule_visibility_soa_py(positions: np.ndarray, normals: np.ndarray, ends_
                 else:
                     cx, cy, cz = ny * lz - nz * ly, nz * lx - nx * lz, nx * ly - ny * lx
                     g = math.atan2(math.sqrt(max(cx * cx + cy * cy + cz * cz, TINY)), cos_g)
-                    h = _lens(alpha, math.pi / 2, g) / cap_a
+                    h = cap_lens(alpha, math.pi / 2, g) / cap_a
                 if h <= 0.0:
                     out[b, v, p] = 0.0
                     continue
@@ -184,7 +161,7 @@ def _capsule_visibility_soa_py(positions: np.ndarray, normals: np.ndarray, ends_
                     cx, cy, cz = ly * oz - lz * oy, lz * ox - lx * oz, lx * oy - ly * ox
                     g = math.atan2(math.sqrt(max(cx * cx + cy * cy + cz * cz, TINY)), lx * ox + ly * oy + lz * oz)
                     beta = math.atan2(r, math.sqrt(max(hh, TINY)))
-                    frac = _lens(alpha, beta, g) / cap_a
+                    frac = cap_lens(alpha, beta, g) / cap_a
                     if frac >= 1.0:
                         vis = 0.0
                         break
@@ -234,11 +211,6 @@ def capsule_visibility_soa(positions: np.ndarray, normals: np.ndarray, ends_a: n
     return out
 
 
-def _tracing(xp: Any) -> bool:
-    """Whether torch is tracing (an ONNX export): shapes are then traced values, not checked."""
-    return bool(xp.jit.is_tracing() or xp.onnx.is_in_onnx_export())
-
-
 def _check_inputs(positions: Array, normals: Array, ends_a: Array, ends_b: Array, radii: Array,
                   directions: Array, angular_radii: Array) -> None:
     """:func:`capsule_peak_visibility`'s argument checks (one-line :class:`PrtError`)."""
@@ -281,7 +253,7 @@ def capsule_peak_visibility(positions: Array, normals: Array, ends_a: Array, end
         return out.reshape(*lead, V, P).astype(positions.dtype, copy=False)
     import torch as xp
 
-    if not _tracing(xp):
+    if not is_tracing(xp):
         _check_inputs(positions, normals, ends_a, ends_b, radii, directions, angular_radii)
     V, S, P = positions.shape[-2], ends_a.shape[-2], directions.shape[0]
     lead = positions.shape[:-2]

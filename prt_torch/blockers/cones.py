@@ -148,7 +148,7 @@ def _sum_at(index: Any, weights: Any, size: Any) -> Any:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _cap_lens(a: float, b: float, gamma: float) -> float:  # pragma: no cover (compiled)
+def cap_lens(a: float, b: float, gamma: float) -> float:  # pragma: no cover (compiled)
     """Scalar :func:`cap_intersection` (the same half-angle and L'Huilier formulas and clamps, float64)."""
     lo = abs(a - b)
     if gamma >= a + b:
@@ -231,7 +231,7 @@ def _sphere_visibility_soa_py(positions: np.ndarray, normals: np.ndarray, center
                 else:
                     cx, cy, cz = ny * lz - nz * ly, nz * lx - nx * lz, nx * ly - ny * lx
                     g = math.atan2(math.sqrt(max(cx * cx + cy * cy + cz * cz, TINY)), cos_g)
-                    h = _cap_lens(a, math.pi / 2, g) / cap_a
+                    h = cap_lens(a, math.pi / 2, g) / cap_a
                 if h <= 0.0:
                     out[b, v, p] = 0.0
                     continue
@@ -249,7 +249,7 @@ def _sphere_visibility_soa_py(positions: np.ndarray, normals: np.ndarray, center
                     cx, cy, cz = ly * oz - lz * oy, lz * ox - lx * oz, lx * oy - ly * ox
                     g = math.atan2(math.sqrt(max(cx * cx + cy * cy + cz * cz, TINY)), lx * ox + ly * oy + lz * oz)
                     beta = math.atan2(r, math.sqrt(max(hh, TINY)))
-                    frac = _cap_lens(a, beta, g) / cap_a
+                    frac = cap_lens(a, beta, g) / cap_a
                     if frac >= 1.0:
                         vis = 0.0
                         break
@@ -300,7 +300,7 @@ def sphere_visibility_soa(positions: np.ndarray, normals: np.ndarray, centers: n
     return out
 
 
-def _tracing(xp: ModuleType) -> bool:
+def is_tracing(xp: ModuleType) -> bool:
     """Whether torch is tracing (an ONNX export): shapes are then traced values, not checked."""
     return xp is not np and bool(xp.jit.is_tracing() or xp.onnx.is_in_onnx_export())
 
@@ -339,7 +339,7 @@ def sphere_peak_visibility(positions: Array, normals: Array, centers: Array, rad
         ``(..., V, P)`` in ``[0, 1]``, the dtype and array type of ``positions`` (numpy or torch).
     """
     xp = _xp(positions)
-    if not _tracing(xp):  # checked on every call; an ONNX export traces the computation only (dynamic B, V, P)
+    if not is_tracing(xp):  # checked on every call; an ONNX export traces the computation only (dynamic B, V, P)
         _check_inputs(positions, normals, centers, radii, directions, angular_radii)
     V, S, P = positions.shape[-2], centers.shape[-2], directions.shape[0]
     lead = positions.shape[:-2]
