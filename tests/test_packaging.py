@@ -62,6 +62,9 @@ _SG_LIGHT = "`prt light --sg` needs the sg extra (healpy, torch) and says so in 
 _SG_SPLIT = ("`prt light FILE --peaks` (a map's light split: seed 004's peak detection) needs the sg extra and says so "
              "in one line without it; the procedural sky's split (`prt light sky --peaks`) is numpy only")
 
+_EXACT_PEAKS = ("exact peak visibility (`--peak-visibility exact`, compare's oracle) traces Embree rays: the bake "
+                "extra (embreex); the learned and sphere kinds need none of it")
+
 #: entry point -> {"module: top" (a lazy import) or "module -> imported module" (a lazy edge): reason}
 UNUSED_LAZY: dict[str, dict[str, str]] = {
     "play": {
@@ -71,6 +74,17 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
         "prt_torch.sh.zonal: torch": _TORCH_TENSORS,
         "prt_torch.blockers.spheres: sklearn": "sphere blockers are fitted (k-means) by prt export; the scene player "
                                                "only loads and poses them",
+        "prt_torch.blockers.capsules: sklearn": "learned capsules are fitted (k-means splits) by prt train; the player "
+                                                "only loads and poses them",
+        "prt_torch.blockers.cones: torch": _TORCH_TENSORS,
+        "prt_torch.blockers.capsule_cones: torch": _TORCH_TENSORS,
+        "prt_torch.player.peaks -> prt_torch.bake.embree": _EXACT_PEAKS,
+        "prt_torch.player.player -> prt_torch.bake.embree": _EXACT_PEAKS,
+        "prt_torch.player.scene -> prt_torch.bake.embree": _EXACT_PEAKS,
+        "prt_torch.scene.peaks -> prt_torch.bake.embree": _EXACT_PEAKS,
+        "prt_torch.player.scene -> prt_torch.scene.truth": _EXACT_PEAKS,
+        "prt_torch.scene.peaks -> prt_torch.scene.truth": _EXACT_PEAKS,
+        "prt_torch.bake.peaks -> prt_torch.bake.embree": _EXACT_PEAKS,
         "prt_torch.rig.vertex_frames: sklearn": _MEAN_SHIFT,
         "prt_torch.brdf.factor: sklearn": _RPO_BUILD,
         "prt_torch.rig.material: sklearn": _MATERIAL_RPO,
@@ -92,11 +106,16 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
     "train": {
         "prt_torch.cloth.bake -> prt_torch.cloth.simulate": "prt train reads a cloth run's dataset; simulating "
                                                                  "(mujoco) is prt bake's",
+        "prt_torch.player.player -> prt_torch.bake.embree": _EXACT_PEAKS,
+        "prt_torch.player.peaks -> prt_torch.bake.embree": _EXACT_PEAKS,
+        "prt_torch.bake.peaks -> prt_torch.bake.embree": _EXACT_PEAKS,
+        "prt_torch.sg.split -> prt_torch.sg.lighting": _SG_SPLIT,
     },
     "export": {
         "prt_torch.cloth.bake -> prt_torch.cloth.simulate": "prt export of a cloth run reads its subject and "
                                                                  "dataset (export.deformable); simulating (mujoco) "
                                                                  "is prt bake's",
+        "prt_torch.bake.peaks -> prt_torch.bake.embree": _EXACT_PEAKS,
     },
     "bake": {
         "prt_torch.sh.basis: torch": _TORCH_TENSORS,

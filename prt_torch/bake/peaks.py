@@ -23,12 +23,15 @@ the penumbra of the disc's size.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from prt_torch.bake.embree import RayScene
 from prt_torch.errors import check
 from prt_torch.shapes import check_shape
+
+if TYPE_CHECKING:
+    from prt_torch.bake.embree import RayScene
 
 #: samples per disc side by default (``n x n`` = 64 rays per vertex and peak)
 DEFAULT_DISC_SIDE = 8
@@ -122,6 +125,8 @@ def exact_peak_visibility(positions: np.ndarray, normals: np.ndarray, directions
     check(isinstance(max_rays, int) and max_rays >= 1, f"max_rays must be an integer >= 1, got {max_rays!r}")
     check((faces is None) != (scene is None), "give exactly one of faces (the mesh to trace) and scene")
     if scene is None:
+        from prt_torch.bake.embree import RayScene  # the bake extra (embreex): record_directions needs none of it
+
         scene = RayScene(pos, faces)  # type: ignore[arg-type]
     V, P = pos.shape[0], dirs.shape[0]
     disc = disc_samples(side, seed)

@@ -219,8 +219,8 @@ def compare_heldout(player: Any, ds: Any, clip: str, out: Path, env: Any = None,
     view = eye[None, None, :] - pos
     view /= np.linalg.norm(view, axis=-1, keepdims=True)
     skin = None
-    if locals_ is not None:  # the baked frames' skinning matrices (what poses the peak blockers)
-        skin = player.pose(np.asarray(locals_)[np.asarray(ds.frame_index[rows])]).skin
+    if locals_ is not None:  # the baked frames' skinning matrices (what poses the peak blockers), by the one
+        skin = ds.row_poses(rows, player.character)[1]  # clip-name rule (a held-out range of a training clip too)
     state = PoseBatch(np.ascontiguousarray(pos.transpose(0, 2, 1)),
                       np.ascontiguousarray(frames[:, :, 2].transpose(0, 2, 1)),
                       np.ascontiguousarray(frames.reshape(n, v, 9).transpose(0, 2, 1)),

@@ -53,6 +53,7 @@ class S001RunPlayer(Player):
                  **_: Any) -> None:
         from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
         from prt_torch.player.lighting import load_lighting
+        from prt_torch.player.peaks import PeakLighting
         from prt_torch.player.posing import Poser
         from prt_torch.rundir import RunDir
         from prt_torch.s001.brdf_matrix import brdf_matrix, factor
@@ -85,6 +86,9 @@ class S001RunPlayer(Player):
         self.window_size = window_size
         self.exposure = None
         self.lighting = load_lighting(env, self.order, n_lobes)
+        self.peaks = PeakLighting(self.lighting, [], None)  # the whole lighting (the sun included) on its own path
+        self.peak_source = None
+        self._peak_dirs = self.peaks.directions
         self.light_angle = 0.0
         self._lobe_dirs = self.lighting.dirs
         b = builtin_brdf(name)

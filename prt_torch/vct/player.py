@@ -69,7 +69,7 @@ class SGPlayer(Player):
         super().__init__(run_dir, env=env, brdf=brdf, graph="split", **kwargs)
         self.env = env
         self.resolution = int(resolution)
-        self.peaks = bool(peaks)
+        self.sg_peaks = bool(peaks)  # seed 004 cone peaks (not the player's peak lights, Player.peaks)
         self.sg_device = device
         self.max_level = int(max_level)
         self._sg: Any = None
@@ -93,7 +93,7 @@ class SGPlayer(Player):
         if stale:
             light = _rotated(self._sg_light, self.light_angle)
             self._sg = SGVCTRenderer(np.asarray(self.character.faces), {name: fit_brdf_sg(builtin_brdf(name))}, light,
-                                     self.resolution, peaks=self.peaks, device=self.sg_device)
+                                     self.resolution, peaks=self.sg_peaks, device=self.sg_device)
             self._sg_brdf, self._sg_angle = name, self.light_angle
         return self._sg
 

@@ -21,12 +21,12 @@ from prt_torch.errors import DamagedArtifact, StaleArtifact
 #: the lists as they were written by hand before the schema marks (stored attrs and resume checks depend on them)
 HAND_RESULT_KEYS = ("order", "n_rays", "below_horizon", "transfer", "transfer_order", "bounces", "albedo", "seed",
                     "ray_offset", "cluster_bandwidth", "max_clusters", "min_cluster_size", "transfer_matrix",
-                    "matrix_order", "matrix_bounces", "subsurface")
+                    "matrix_order", "matrix_bounces", "subsurface", "peaks")
 HAND_DEFAULTS = {"below_horizon": "zero", "transfer_matrix": False, "matrix_order": 4, "matrix_bounces": 1,
-                 "subsurface": None}
+                 "subsurface": None, "peaks": None}
 HAND_PARAMS = ("order", "n_rays", "below_horizon", "transfer", "transfer_order", "bounces", "albedo", "seed",
                "ray_offset", "cluster_bandwidth", "max_clusters", "min_cluster_size", "vertex_chunk_rays",
-               "transfer_matrix", "matrix_order", "matrix_bounces", "subsurface")
+               "transfer_matrix", "matrix_order", "matrix_bounces", "subsurface", "peaks")
 
 
 def test_result_keys_come_from_the_schema() -> None:

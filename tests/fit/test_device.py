@@ -113,7 +113,7 @@ def test_stage_key_unchanged_on_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
     cfg = TrainConfig(**SMALL)
     settings = cfg.model_dump(mode="json")
     del settings["device"]
-    for opt in ("transfer", "s001", "local", "output_max_components", "input_max_components"):  # keyed only when set
+    for opt in ("transfer", "s001", "local", "peaks", "output_max_components", "input_max_components"):  # if set
         if settings.get(opt) is None:
             settings.pop(opt, None)
     old = stage_key({"train": settings, "dataset": "dataset-key"})

@@ -48,8 +48,8 @@ def test_demo_with_floor(tmp_path_factory: pytest.TempPathFactory) -> None:
                                    "scene": {"ground": {"resolution": 16}}}))
     assert main(["demo", "--config", str(cfg), "--frames", "3", "--size", "120x160", "--brdf", "phong"]) == 0
     png = iio.imread(run_dir / "comparison.png")
-    assert png.shape == (3 * 120, 3 * 160, 3)  # a third row: the scene, truth | model | difference
-    truth, model, diff = np.split(png[240:].astype(float), 3, axis=1)
+    assert png.shape == (3 * 120, 4 * 160, 3)  # a third row (the scene); 4 columns: reference | truth | model | diff
+    _, truth, model, diff = np.split(png[240:].astype(float), 4, axis=1)  # a blank under the reference column
     assert np.abs(truth - model).mean() < 0.25 * truth.mean() and diff.mean() < truth.mean()
     frames = [f for f in iio.get_reader(run_dir / "heldout.mp4")]  # noqa: C416  (list() asks len(): inf)
     assert len(frames) == 3
