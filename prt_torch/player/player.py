@@ -255,16 +255,14 @@ class Player:
         of the character's material for ``material``; another RPO (a file of another BRDF) is a one-line error."""
         name = (self.rpo if rpo is None else rpo).name
         if name not in self._peak_brdfs:
-            from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
-            from prt_torch.rig.material import MATERIAL_BRDF, character_material, material_brdf
+            from prt_torch.brdf.rpo import CATALOGUE
+            from prt_torch.rig.material import MATERIAL_BRDF, analytic_brdf, character_material
 
-            if name in CATALOGUE:
-                self._peak_brdfs[name] = builtin_brdf(name)
-            elif name == MATERIAL_BRDF:
-                self._peak_brdfs[name] = material_brdf(character_material(self.character))
-            else:
+            brdf = analytic_brdf(name, character_material(self.character))
+            if brdf is None:
                 raise PrtError(f"the peak lights need the analytic BRDF of RPO {name!r} (one of {', '.join(CATALOGUE)} "
                                f"or {MATERIAL_BRDF!r}): play it with --peaks 0")
+            self._peak_brdfs[name] = brdf
         return self._peak_brdfs[name]
 
     # -- settings ------------------------------------------------------------------------------

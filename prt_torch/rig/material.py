@@ -156,6 +156,17 @@ def material_brdf(material: Material) -> Any:
 MATERIAL_BRDF = "material"
 
 
+def analytic_brdf(name: str, material: Material | None = None) -> Any:
+    """The analytic BRDF an RPO named ``name`` was built from (the peak lights' direct term uses it): ``material``
+    (:data:`MATERIAL_BRDF`, with the character's ``material``) -> :func:`material_brdf`, a catalogue name ->
+    :func:`prt_torch.brdf.rpo.builtin_brdf`; ``None`` for an RPO of no known BRDF."""
+    from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
+
+    if name == MATERIAL_BRDF and material is not None:
+        return material_brdf(material)
+    return builtin_brdf(name) if name in CATALOGUE else None
+
+
 def material_rpo_key(material: Material, order: int, k: int) -> str:
     """Content address of the material's RPO: sha256 (first 16 hex digits) of the RPO file format, the BRDF
     (:func:`material_brdf`, all its parameters), ``order``, ``k`` and the factorisation's hemisphere rule. Two

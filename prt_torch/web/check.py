@@ -308,10 +308,10 @@ def _peak_cases(ps: PageSession, player: Any, m: dict[str, Any], site: str | os.
     from prt_torch.player.lighting import load_lighting
     from prt_torch.player.peaks import load_peak_lighting
     from prt_torch.player.tonemap import ToneMap
-    from prt_torch.rig.material import character_material
+    from prt_torch.rig.material import analytic_brdf, character_material
     from prt_torch.scoring.statistics import image_psnr
     from prt_torch.scoring.strips import abs_diff_image, write_png
-    from prt_torch.web.peaks import PeakGraph, page_brdf, page_radiance
+    from prt_torch.web.peaks import PeakGraph, page_radiance
     from prt_torch.web.site import ASSETS, PEAKS_MODEL, site_local
 
     light = m["lights"][0]
@@ -329,7 +329,7 @@ def _peak_cases(ps: PageSession, player: Any, m: dict[str, Any], site: str | os.
             local = site_local(player.character, case["clip"], case["frame"])
             player.set_brdf(case["brdf"])
             state, rad, _ = page_radiance(player, local, whole_lighting, split, case["lightAngle"], graph,
-                                          page_brdf(case["brdf"], material))
+                                          analytic_brdf(case["brdf"], material))
             ref = player.render_frame(state, rad)
             mask = masker.mask(state.positions_vx3(0))
             img, _ = ps.frame({**case, "light": "sky", "playing": False, "unshadowed": False, "peaks": True,

@@ -3,11 +3,11 @@
 With peaks on, the page shades per vertex the residual lighting's RPO radiance (its ZH lobes on the SH path) plus,
 per peak ``p`` (at most :data:`MAX_PAGE_PEAKS`), ``E_p f_r(l_p, v) max(n . l_p, 0) V_p``
 (:func:`prt_torch.brdf.direct.peak_radiance`) with the analytic BRDF the RPO was built from
-(:func:`page_brdf`: the catalogue's by name, the glTF material's Cook-Torrance for ``material``), the base colour
-multiplying both. ``V_p`` is the run's learned peak visibility ``peaks.onnx`` (onnxruntime-web on the page,
-onnxruntime here: :class:`PeakGraph`); a run without it shades its peaks unshadowed (``V_p = 1``: only the BRDF's
-horizon), the rule :func:`page_peak_visibility` implements for both sides. Peaks off: the whole lighting on the
-SH path, as before.
+(:func:`prt_torch.rig.material.analytic_brdf`: the catalogue's by name, the glTF material's Cook-Torrance for
+``material``), the base colour multiplying both. ``V_p`` is the run's learned peak visibility ``peaks.onnx``
+(onnxruntime-web on the page, onnxruntime here: :class:`PeakGraph`); a run without it shades its peaks unshadowed
+(``V_p = 1``: only the BRDF's horizon), the rule :func:`page_peak_visibility` implements for both sides. Peaks off:
+the whole lighting on the SH path, as before.
 
 The manifest describes each BRDF as :func:`brdf_entry` (``kind`` and parameters, what ``prt_shading.glsl``'s
 ``prtPeakBrdf`` evaluates) and each lighting preset's split as :func:`peaks_entry`.
@@ -27,18 +27,6 @@ from prt_torch.shapes import check_shape
 MAX_PAGE_PEAKS = 4
 #: the shader's BRDF kinds (``u_brdfKind``), by analytic BRDF class name
 BRDF_KINDS = {"Lambert": 0, "Phong": 1, "BlinnPhong": 2, "CookTorrance": 3, "Ward": 4}
-
-
-def page_brdf(name: str, material: Any = None) -> Any:
-    """The analytic BRDF the page's RPO ``name`` was built from: ``material`` -> the glTF material's Cook-Torrance
-    (:func:`prt_torch.rig.material.material_brdf`), a catalogue name -> :func:`prt_torch.brdf.rpo.builtin_brdf`;
-    ``None`` for an RPO of no known BRDF (the page then shades no peak term for it)."""
-    from prt_torch.brdf.rpo import CATALOGUE, builtin_brdf
-    from prt_torch.rig.material import MATERIAL_BRDF, material_brdf
-
-    if name == MATERIAL_BRDF and material is not None:
-        return material_brdf(material)
-    return builtin_brdf(name) if name in CATALOGUE else None
 
 
 def brdf_entry(brdf: Any) -> dict[str, Any] | None:

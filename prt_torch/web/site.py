@@ -37,8 +37,9 @@ import numpy as np
 
 from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path, atomic_write_bytes, atomic_write_json
+from prt_torch.rig.material import analytic_brdf
 from prt_torch.shapes import check_shape
-from prt_torch.web.peaks import MAX_PAGE_PEAKS, brdf_entry, page_brdf, peaks_entry
+from prt_torch.web.peaks import MAX_PAGE_PEAKS, brdf_entry, peaks_entry
 
 #: version of the site format (manifest key ``format``)
 SITE_FORMAT = "prt_torch.web/1"
@@ -219,7 +220,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         blob.add(f"rpo:{name}:w", r.w, "float32")
         rpo_entries.append({"name": name, "tint": r.tint.astype(float).tolist(), "M": f"rpo:{name}:M",
                             "u": f"rpo:{name}:u", "w": f"rpo:{name}:w",
-                            "brdf": brdf_entry(page_brdf(name, material))})
+                            "brdf": brdf_entry(analytic_brdf(name, material))})
     base = vertex_base_color(ch)
     blob.add("base_color", base if base is not None else np.ones((ch.num_vertices, 3), np.float32), "float32")
     texture = None
@@ -351,7 +352,7 @@ def player_tonemaps(run: Path, lights: dict[str, Any], brdf: str, character: Any
 
     p = Player(run, brdf=brdf, threads=1, graph="split")
     graph = PeakGraph(peak_graph) if peak_graph is not None else None
-    analytic = page_brdf(brdf, material)
+    analytic = analytic_brdf(brdf, material)
     try:
         local = site_local(character, clip, 0)
         out: dict[str, Any] = {}

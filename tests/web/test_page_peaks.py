@@ -106,8 +106,8 @@ def test_shader_peak_term_equals_the_analytic_brdfs(page: Any, player: Any, mani
                                                     sky: Any) -> None:
     """SH visibility 0 (the SH path is linear in it: exactly 0), given peak visibility in [0, 1]: the page's
     radiance is its peak term alone, for every BRDF of the catalogue, light turned."""
-    from prt_torch.rig.material import character_material
-    from prt_torch.web.peaks import page_brdf, page_peak_radiance
+    from prt_torch.rig.material import analytic_brdf, character_material
+    from prt_torch.web.peaks import page_peak_radiance
     from prt_torch.web.site import site_local
 
     _, split = sky
@@ -120,7 +120,7 @@ def test_shader_peak_term_equals_the_analytic_brdfs(page: Any, player: Any, mani
     grazing = _grazing(state)
     turned = split.rotated_about_z(angle)
     for r in manifest["rpos"]:
-        brdf = page_brdf(r["name"], character_material(player.character))
+        brdf = analytic_brdf(r["name"], character_material(player.character))
         want = page_peak_radiance(state, turned, pvis, brdf)[0]
         got = _page_radiance(page, {**SKY, "brdf": r["name"], "peaks": True, "lightAngle": angle},
                              _flat_inputs(player, state, zero, pvis))
@@ -133,7 +133,8 @@ def test_shader_peak_term_equals_the_analytic_brdfs(page: Any, player: Any, mani
 def test_page_radiance_with_peaks_equals_python(page: Any, player: Any, peak_graph: Any, sky: Any) -> None:
     """The same posed inputs (Python's posing, the model's visibility, peaks.onnx in onnxruntime): the page's
     per-vertex radiance with peaks on (residual lobes + peak term) and off (the whole sky) equals Python's."""
-    from prt_torch.web.peaks import page_brdf, page_radiance
+    from prt_torch.rig.material import analytic_brdf
+    from prt_torch.web.peaks import page_radiance
     from prt_torch.web.site import site_local
 
     whole, split = sky
@@ -142,7 +143,7 @@ def test_page_radiance_with_peaks_equals_python(page: Any, player: Any, peak_gra
         player.set_brdf(brdf)
         for peaks in (True, False):
             state, want, pvis = page_radiance(player, local, whole, split if peaks else None, angle, peak_graph,
-                                              page_brdf(brdf))
+                                              analytic_brdf(brdf))
             vis = player.visibility(state.features)[0]
             pv = pvis if pvis is not None else np.ones((1, state.positions.shape[2], 1), np.float32)
             got = _page_radiance(page, {**SKY, "brdf": brdf, "peaks": peaks, "lightAngle": angle},
@@ -192,7 +193,8 @@ def test_page_with_peaks_equals_python_on_its_own_posing(page: Any, player: Any,
     """The whole page path (JS posing, onnxruntime-web visibility and peak graph, the shader) against Python's:
     per-vertex radiance and the frame; the peaks' shadow makes the frame differ from the whole sky's."""
     from prt_torch.player.tonemap import ToneMap
-    from prt_torch.web.peaks import page_brdf, page_radiance
+    from prt_torch.rig.material import analytic_brdf
+    from prt_torch.web.peaks import page_radiance
     from prt_torch.web.site import site_local
 
     whole, split = sky
@@ -201,7 +203,7 @@ def test_page_with_peaks_equals_python_on_its_own_posing(page: Any, player: Any,
     angle = 2.0  # the sun from the character's side: its arms and legs shadow it
     player.set_brdf("phong")
     state, want, pvis = page_radiance(player, site_local(player.character, "wave", 6), whole, split, angle,
-                                      peak_graph, page_brdf("phong"))
+                                      peak_graph, analytic_brdf("phong"))
     base = {**SKY, "clip": "wave", "frame": 6, "brdf": "phong", "lightAngle": angle, "tonemap": tm}
     img, _ = page.frame({**base, "peaks": True})
     got = _page_radiance(page, {}, None)
@@ -248,9 +250,10 @@ def test_learned_peak_graph_runs_in_the_page(peak_run: Path, browser: Any, tmp_p
     from prt_torch.player.lighting import load_lighting
     from prt_torch.player.peaks import load_peak_lighting
     from prt_torch.player.player import Player
+    from prt_torch.rig.material import analytic_brdf
     from prt_torch.rundir import RunDir
     from prt_torch.web.check import served_page
-    from prt_torch.web.peaks import PeakGraph, page_brdf, page_radiance
+    from prt_torch.web.peaks import PeakGraph, page_radiance
     from prt_torch.web.site import ASSETS, read_manifest, site_local, write_site
 
     site = tmp_path / "site"
@@ -266,7 +269,7 @@ def test_learned_peak_graph_runs_in_the_page(peak_run: Path, browser: Any, tmp_p
         player.set_brdf(brdf)
         whole, split = load_lighting(None, player.order), load_peak_lighting(None, player.order, "auto")
         local = site_local(player.character, "wave", 3)
-        state, want, pvis = page_radiance(player, local, whole, split, 1.5, graph, page_brdf(brdf))
+        state, want, pvis = page_radiance(player, local, whole, split, 1.5, graph, analytic_brdf(brdf))
         with served_page(site, browser=browser) as ps:
             assert ps.wait_ready(), ps.page.evaluate("window.prt.error")
             ps.frame({**SKY, "clip": "wave", "frame": 3, "brdf": brdf, "lightAngle": 1.5, "peaks": True})
