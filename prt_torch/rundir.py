@@ -57,6 +57,8 @@ if TYPE_CHECKING:
 STAGES = ("bake", "train", "export")
 #: the ONNX graphs of an export, by role
 GRAPHS = ("visibility", "shading", "fused")
+#: the graphs an export ships for some runs only (``fused_peaks``: a run with learned peak blockers)
+OPTIONAL_GRAPHS = ("fused_peaks",)
 
 _DATASET = "dataset.zarr"
 _CHARACTER = "character.npz"
@@ -389,6 +391,12 @@ class RunDir:
         return self.path / _PEAKS_ONNX
 
     @property
+    def fused_peaks_graph_path(self) -> Path:
+        """``fused_peaks.onnx``: the fused graph with the peak lights' term, learned shadows included
+        (:class:`prt_torch.export.peaks_graph.FusedPeaksGraph`, ``prt export`` of a run with learned peak blockers)."""
+        return self.graph_path("fused_peaks")
+
+    @property
     def s001(self) -> Path:
         """``s001.npz``: seed 001's compressed transfer matrices (``prt train`` with ``train.s001``)."""
         return self.path / _S001
@@ -431,8 +439,9 @@ class RunDir:
         return self.path / _TRANSFER_ONNX
 
     def graph_path(self, graph: str) -> Path:
-        """``<graph>.onnx`` for ``graph`` in :data:`GRAPHS`."""
-        check(graph in GRAPHS, f"unknown graph {graph!r}: expected one of {list(GRAPHS)}")
+        """``<graph>.onnx`` for ``graph`` in :data:`GRAPHS` or :data:`OPTIONAL_GRAPHS`."""
+        check(graph in GRAPHS + OPTIONAL_GRAPHS, f"unknown graph {graph!r}: expected one of "
+                                                 f"{list(GRAPHS + OPTIONAL_GRAPHS)}")
         return self.path / f"{graph}.onnx"
 
     def rpo_path(self, name: str) -> Path:

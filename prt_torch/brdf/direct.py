@@ -175,26 +175,35 @@ _peak_shading = numba.njit(cache=True, nogil=True, parallel=True)(_peak_shading_
 _peak_shading_serial = numba.njit(cache=True, nogil=True)(_peak_shading_py)
 
 
-def _compiled_brdf(brdf: Any) -> tuple[int, np.ndarray] | None:
-    """``(model, parameters)`` of :func:`_brdf_shape` for an analytic BRDF of exactly one of its classes, else
-    ``None`` (a subclass may change the shape: the generic path evaluates it)."""
+#: the codes of the analytic BRDF shapes the compiled pass and the exported graphs know (:func:`brdf_code`)
+BRDF_CODES = {"lambert": 0, "phong": 1, "cook_torrance": 2, "ward": 3, "blinn_phong": 4}
+#: parameters per code (zero-padded to this length)
+BRDF_PARAMS = 4
+
+
+def brdf_code(brdf: Any) -> tuple[int, np.ndarray] | None:
+    """``(code, parameters (BRDF_PARAMS,) float64)`` of the analytic shape of ``brdf`` (:data:`BRDF_CODES`: Lambert
+    ``()``, Phong ``(e, kd, ks)``, Cook-Torrance ``(alpha, f0, kd, ks)``, Ward ``(alpha, kd, ks)``, Blinn-Phong
+    ``(e, kd, ks, norm)``) for a BRDF of exactly one of those classes, else ``None`` (a subclass may change the
+    shape: the generic path evaluates it). The compiled pass (:func:`_brdf_shape`) and the exported graphs
+    (:mod:`prt_torch.brdf.direct_graph`) take the BRDF as this pair."""
     from prt_torch.brdf.analytic import BlinnPhong, CookTorrance, Lambert, Phong, Ward
 
     t = type(brdf)
+    prm: tuple[float, ...]
     if t is Lambert:
-        prm: tuple[float, ...] = (0.0,)
-        model = 0
+        name, prm = "lambert", ()
     elif t is Phong:
-        model, prm = 1, (brdf.exponent, brdf.kd, brdf.ks)
+        name, prm = "phong", (brdf.exponent, brdf.kd, brdf.ks)
     elif t is CookTorrance:
-        model, prm = 2, (brdf.alpha, brdf.f0, brdf.kd, brdf.ks)
+        name, prm = "cook_torrance", (brdf.alpha, brdf.f0, brdf.kd, brdf.ks)
     elif t is Ward:
-        model, prm = 3, (brdf.alpha, brdf.kd, brdf.ks)
+        name, prm = "ward", (brdf.alpha, brdf.kd, brdf.ks)
     elif t is BlinnPhong:
-        model, prm = 4, (brdf.exponent, brdf.kd, brdf.ks, brdf.norm)
+        name, prm = "blinn_phong", (brdf.exponent, brdf.kd, brdf.ks, brdf.norm)
     else:
         return None
-    return model, np.asarray(prm, dtype=np.float64)
+    return BRDF_CODES[name], np.asarray(prm + (0.0,) * (BRDF_PARAMS - len(prm)), dtype=np.float64)
 
 
 def peak_radiance_soa(frames: np.ndarray, view: np.ndarray, directions: np.ndarray, powers: np.ndarray,
@@ -226,7 +235,7 @@ def peak_radiance_soa(frames: np.ndarray, view: np.ndarray, directions: np.ndarr
     out = np.zeros((n_b, n_v, 3), np.float32)
     if n_p == 0 or n_v == 0:
         return out
-    compiled = _compiled_brdf(brdf)
+    compiled = brdf_code(brdf)
     if compiled is not None:  # one compiled pass, no temporaries
         tinted = np.ascontiguousarray(e * np.asarray(brdf.tint, dtype=np.float64)[None, :])
         (_peak_shading if threads else _peak_shading_serial)(f, vw, d, tinted, vis, compiled[0], compiled[1], out)

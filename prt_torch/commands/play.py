@@ -38,10 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-frames", "--frames", dest="max_frames", type=int, default=None,
                         help="play at most this many frames")
     parser.add_argument("--fps", type=float, default=None, help="resample the clip to this rate")
-    parser.add_argument("--graph", default="fused", choices=["fused", "split", "overlap", "pipeline"],
+    parser.add_argument("--graph", default="fused", choices=["fused", "split", "overlap", "fused_peaks", "pipeline"],
                         help="one fused ORT graph, visibility then shading, visibility on a worker thread "
-                             "overlapping the numpy posing (best when a core is free), or (a cloth sequence) the "
-                             "next frame's features, visibility and frames on a worker while this one is shaded")
+                             "overlapping the numpy posing (best when a core is free), the fused graph with the "
+                             "peak lights and their learned shadows inside it (fused_peaks.onnx), or (a cloth "
+                             "sequence) the next frame's features, visibility and frames on a worker while this one "
+                             "is shaded")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"],
                         help="onnxruntime device: cuda needs onnxruntime-gpu (extra 'gpu') and a CUDA GPU")

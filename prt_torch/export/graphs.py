@@ -484,3 +484,25 @@ class FusedGraph(nn.Module):
         if not self.vertex_last:  # (B, V, C): the transpose fuses into the RPO MatMul (transB)
             vis = vis.transpose(1, 2)
         return self.shading.shade_vertex_last(vis, frames, view_dirs, lobe_dirs, lobe_coeffs, rpo_M, rpo_w, rpo_tint)
+
+
+class FusedPeaksGraph(nn.Module):
+    """``fused_peaks.onnx`` (:mod:`prt_torch.export.peaks_graph`): ``fused`` (a :class:`FusedGraph`) plus the peak
+    lights' term with the learned ``blockers`` (a :class:`~prt_torch.models.peak_blockers.PeakBlockers`): the
+    whole radiance ``(B, V, 3)`` and the peaks' visibility ``(B, V, P)``."""
+
+    def __init__(self, fused: nn.Module, blockers: nn.Module) -> None:
+        super().__init__()
+        self.fused = fused
+        self.blockers = blockers
+
+    def forward(self, pose: torch.Tensor, frames: torch.Tensor, view_dirs: torch.Tensor, lobe_dirs: torch.Tensor,
+                lobe_coeffs: torch.Tensor, rpo_M: torch.Tensor, rpo_w: torch.Tensor, rpo_tint: torch.Tensor,
+                positions: torch.Tensor, skin: torch.Tensor, peak_directions: torch.Tensor, peak_radii: torch.Tensor,
+                peak_powers: torch.Tensor, peak_brdf: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        from prt_torch.brdf.direct_graph import peak_radiance_graph
+
+        residual = self.fused(pose, frames, view_dirs, lobe_dirs, lobe_coeffs, rpo_M, rpo_w, rpo_tint)
+        vis = self.blockers(positions.transpose(1, 2), frames[:, 6:9].transpose(1, 2), skin, peak_directions,
+                            peak_radii)
+        return residual + peak_radiance_graph(frames, view_dirs, peak_directions, peak_powers, vis, peak_brdf), vis

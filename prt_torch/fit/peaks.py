@@ -46,6 +46,7 @@ class PeakFitSettings:
     seed: int = 0
     blockers: str = "spheres"
     capsules_per_bone: float = 1.0
+    weight: str = "uniform"
 
 
 @dataclass
@@ -104,11 +105,22 @@ def _predict(model: Any, data: PeakData, idx: np.ndarray, radius: float, verts: 
     return torch.cat(out, 0)
 
 
-def peak_errors(pred: np.ndarray, target: np.ndarray) -> dict[str, float]:
+def shading_weight(normals: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """``(F, V, D)`` ``max(n . l, 0)`` of frames' normals ``(F, V, 3)`` and discs ``(F, D, 3)``: how much a
+    vertex-disc pair's visibility moves a Lambert vertex's radiance (the peak term's cosine)."""
+    return np.clip(np.einsum("fvk,fdk->fvd", normals, directions), 0.0, None).astype(np.float32)
+
+
+def peak_errors(pred: np.ndarray, target: np.ndarray, weight: np.ndarray | None = None) -> dict[str, float]:
     """``{"mean_abs_err", "wrong_side"}``: the mean absolute error of visible fractions and the share of pairs on
-    the other side of 0.5 from the target."""
+    the other side of 0.5 from the target; with ``weight`` (:func:`shading_weight`) also ``"shading_rmse"``, the
+    root mean square of ``weight x (pred - target)``: the peak term's radiance error in units of the peak's
+    irradiance (what the image PSNR sees)."""
     p, t = np.asarray(pred, np.float64), np.asarray(target, np.float64)
-    return {"mean_abs_err": float(np.abs(p - t).mean()), "wrong_side": float(((p > 0.5) != (t > 0.5)).mean())}
+    out = {"mean_abs_err": float(np.abs(p - t).mean()), "wrong_side": float(((p > 0.5) != (t > 0.5)).mean())}
+    if weight is not None:
+        out["shading_rmse"] = float(np.sqrt(np.mean((np.asarray(weight, np.float64) * (p - t)) ** 2)))
+    return out
 
 
 def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows: np.ndarray, n_spheres: int,
@@ -125,10 +137,21 @@ def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows
           f"peak blockers must be 'spheres' or 'capsules', got {settings.blockers!r}")
     check(len(train_rows) > 0, "peak blockers: no baked train frames with peak visibility")
     t0 = time.perf_counter()
-    train = load_peak_data(ds, character, train_rows)
-    ev = load_peak_data(ds, character, eval_rows if len(eval_rows) else train_rows)
+    check(settings.weight in ("uniform", "cosine"), f"peak fit weight must be 'uniform' or 'cosine', got "
+                                                     f"{settings.weight!r}")
     rng = np.random.default_rng(settings.seed)
-    ev_idx = np.sort(rng.choice(len(ev.positions), min(settings.eval_frames, len(ev.positions)), replace=False))
+    train_rows = np.asarray(train_rows)
+    # the step kept is chosen on train frames set apart from the fit (never on the held-out frames it is scored on)
+    n_val = min(settings.eval_frames, len(train_rows) // 5)
+    val_pick = np.zeros(len(train_rows), bool)
+    val_pick[rng.choice(len(train_rows), n_val, replace=False)] = True
+    train = load_peak_data(ds, character, train_rows[~val_pick])
+    val = load_peak_data(ds, character, train_rows[val_pick]) if n_val else train
+    val_idx = np.arange(len(val.positions)) if n_val else np.sort(
+        rng.choice(len(train.positions), min(settings.eval_frames, len(train.positions)), replace=False))
+    ev = load_peak_data(ds, character, eval_rows) if len(eval_rows) else None
+    ev_idx = (np.sort(rng.choice(len(ev.positions), min(settings.eval_frames, len(ev.positions)), replace=False))
+              if ev is not None else None)
     torch.manual_seed(settings.seed)
     check(settings.capsules_per_bone >= 1.0, f"capsules per bone must be >= 1, got {settings.capsules_per_bone!r}")
     if settings.blockers == "capsules":
@@ -140,13 +163,16 @@ def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows
     opt = torch.optim.Adam(model.parameters(), lr=settings.learning_rate)
     V = train.positions.shape[1]
     nv = min(settings.vertices_per_step, V)
-    target_ev = ev.visibility[ev_idx]
+    cosine = settings.weight == "cosine"
+    key = "shading_rmse" if cosine else "mean_abs_err"
 
-    def evaluate() -> dict[str, float]:
+    def evaluate(data: PeakData, idx: np.ndarray) -> dict[str, float]:
         with torch.no_grad():
-            return peak_errors(_predict(model, ev, ev_idx, ev.angular_radius).numpy(), target_ev)
+            pred = _predict(model, data, idx, data.angular_radius).numpy()
+        return peak_errors(pred, data.visibility[idx], shading_weight(data.normals[idx], data.directions[idx]))
 
-    initial = evaluate()
+    initial = evaluate(val, val_idx)
+    initial_ev = evaluate(ev, ev_idx) if ev is not None else None
     best, best_state, history = initial, {k: v.clone() for k, v in model.state_dict().items()}, []
     wide = max(math.radians(settings.widen_deg), train.angular_radius)
     every = max(1, settings.steps // 10)
@@ -155,23 +181,29 @@ def fit_peak_blockers(ds: Any, character: Any, train_rows: np.ndarray, eval_rows
         radius = wide + (train.angular_radius - wide) * a
         idx = rng.choice(len(train.positions), min(settings.frames_per_step, len(train.positions)), replace=False)
         verts = np.sort(rng.choice(V, nv, replace=False))
-        pred = _predict(model, train, idx, radius, verts)
-        loss = torch.mean((pred - torch.from_numpy(train.visibility[idx][:, verts])) ** 2)
+        err = _predict(model, train, idx, radius, verts) - torch.from_numpy(train.visibility[idx][:, verts])
+        if cosine:
+            err = err * torch.from_numpy(shading_weight(train.normals[idx][:, verts], train.directions[idx]))
+        loss = torch.mean(err ** 2)
         opt.zero_grad()
         loss.backward()
         opt.step()
         if (step + 1) % every == 0 or step + 1 == settings.steps:
-            e = evaluate()
+            e = evaluate(val, val_idx)
             history.append({"step": step + 1, "loss": float(loss.detach()), **e})
-            if a >= 1.0 and e["mean_abs_err"] < best["mean_abs_err"]:
+            if a >= 1.0 and e[key] < best[key]:
                 best, best_state = e, {k: v.clone() for k, v in model.state_dict().items()}
         if progress is not None:
             progress.advance()
     model.load_state_dict(best_state)
-    if not np.isfinite(best["mean_abs_err"]):
+    if not np.isfinite(best[key]):
         raise PrtError("peak blockers: the fit diverged (non-finite error)")
-    metrics = {"blockers": settings.blockers, "spheres": int(model.bone.shape[0]), "train_frames": int(len(train_rows)),
-               "eval_frames": int(len(ev_idx)), "eval_split": "heldout" if len(eval_rows) else "train",
-               "angular_radius_deg": math.degrees(train.angular_radius), "initial": initial, "learned": best,
+    scored = evaluate(ev, ev_idx) if ev is not None else best
+    metrics = {"blockers": settings.blockers, "spheres": int(model.bone.shape[0]),
+               "train_frames": int(len(train.positions)), "validation_frames": int(len(val_idx)),
+               "eval_frames": int(len(ev_idx) if ev_idx is not None else len(val_idx)),
+               "eval_split": "heldout" if ev is not None else "validation",
+               "angular_radius_deg": math.degrees(train.angular_radius),
+               "initial": initial_ev if initial_ev is not None else initial, "learned": scored, "validation": best,
                "history": history, "fit_s": time.perf_counter() - t0, "settings": settings.__dict__}
     return model, metrics

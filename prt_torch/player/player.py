@@ -9,6 +9,8 @@ Per frame (``Player.compute``)::
     [fused]  ORT fused.onnx(pose, frames, view dirs, lobes, RPO) -> radiance (B, V, 3)
     [split]  ORT visibility.onnx(pose) -> (B, V, C);  ORT shading.onnx(...) -> radiance
     [overlap] split, with visibility.onnx running on a worker thread while numpy poses (compute_overlapped)
+    [fused_peaks] ORT fused_peaks.onnx(fused inputs, positions, skin, peaks, BRDF) -> radiance with the peaks' term
+             and their learned shadows in the same graph (prt_torch.export.peaks_graph; no [peaks] step after it)
     [peaks]  + sum_p E_p f_r(l_p, v) max(n.l_p, 0) V_p: each peak light of the lighting (its sun) with its soft
              shadow V_p (B, V, P) from the run's peak blockers (prt_torch.player.peaks), after the graph(s)
     B > 1 (a crowd): ONE batched call of every graph for all B characters (same or different clips)
@@ -45,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.blockers.cones import sphere_visibility_soa
-from prt_torch.brdf.direct import peak_radiance_soa
+from prt_torch.brdf.direct import brdf_code, peak_radiance_soa
 from prt_torch.errors import PrtError, check, warn
 from prt_torch.player.bundle import RPOTensors, RunBundle
 from prt_torch.player.lighting import Lighting, hemisphere_visibility
@@ -66,7 +68,9 @@ from prt_torch.rig.clip import Clip
 from prt_torch.rundir import RunDir
 from prt_torch.runtime.session import OrtGraph
 
-GRAPH_MODES = ("fused", "split", "overlap")
+GRAPH_MODES = ("fused", "split", "overlap", "fused_peaks")
+#: the graph modes that play a graph in the export's cluster-sorted vertex order
+CLUSTER_ORDER_MODES = ("fused", "fused_peaks")
 
 
 @dataclass
@@ -179,7 +183,9 @@ class Player:
             from threadpoolctl import threadpool_limits
 
             self._blas_limit = threadpool_limits(limits=int(blas_threads), user_api="blas")
-        self.bundle = RunBundle(run_dir, threads=threads, spinning=spinning, device=device)
+        self.bundle = RunBundle(run_dir, threads=threads, spinning=spinning, device=device,
+                                graphs=("visibility", "shading", "fused") + (("fused_peaks",) if graph == "fused_peaks"
+                                                                             else ()))
         self.device = device
         #: the fused graph's vertex order (``None``: original); the posing runs in it
         self.vertex_order = self.bundle.vertex_order
@@ -206,12 +212,14 @@ class Player:
         self.peak_source: PeakVisibility | None = self._peak_source(peak_kind) if self.peaks.peaks else None
         if self.peaks.peaks:
             self.peak_brdf()  # a BRDF without an analytic form fails here, not on the first frame
+        if graph == "fused_peaks":
+            self._check_fused_peaks()
         self.exposure = exposure
         self.unshadowed = hemisphere_visibility(self.order, self.bundle.below_horizon)
         ch = self.character
         # the fused graph's order when it is the path played (the split graphs take the original order)
         self.poser = Poser(ch, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone,
-                           order=self.vertex_order if graph == "fused" else None)
+                           order=self.vertex_order if graph in CLUSTER_ORDER_MODES else None)
         self.center, self.radius = camera_target(ch.rest_vertices)
         self.camera_azimuth = CAMERA_AZIMUTH
         self.camera_elevation = CAMERA_ELEVATION
@@ -225,6 +233,15 @@ class Player:
         lighting, the sun included)."""
         cls = type(self)
         return AUTO if cls.compute is Player.compute and cls.shade is Player.shade else 0
+
+    def _check_fused_peaks(self) -> None:
+        """``graph="fused_peaks"`` plays the run's learned peak blockers inside the graph: one-line errors when the
+        player's peaks are something else."""
+        check(bool(self.peaks.peaks), "graph 'fused_peaks' needs peak lights (peaks='auto' or K > 0)")
+        check(self.peak_source is not None and self.peak_source.kind == "learned",
+              "graph 'fused_peaks' plays the run's learned peak blockers: peak visibility must be 'learned'")
+        check(brdf_code(self.peak_brdf()) is not None,
+              f"graph 'fused_peaks' needs an analytic BRDF it knows for RPO {self.rpo.name!r}: play graph 'fused'")
 
     def _peak_source(self, kind: str | None) -> PeakVisibility | None:
         """The :class:`~prt_torch.player.peaks.PeakVisibility` of ``kind`` (``None``: the run's best, see the class
@@ -433,7 +450,29 @@ class Player:
         state = self.pose(local)
         if timer is not None:
             timer.add("pose", time.perf_counter() - t0)
+        if self.graph == "fused_peaks":
+            return state, self._fused_peaks(state, timer)
         return state, self._with_peaks(state, self.shade(state, checked=False, timer=timer), timer)
+
+    def _fused_peaks(self, state: PoseBatch, timer: FrameTimer | None) -> np.ndarray:
+        """``graph="fused_peaks"``: the whole radiance ``(B, V, 3)`` from one graph call (original order); sets the
+        batch's ``peak_visibility`` (its ``residual_radiance`` stays ``None``: the graph returns the sum)."""
+        t0 = time.perf_counter()
+        o = self.vertex_order
+        brdf = self.peak_brdf()
+        code = brdf_code(brdf)
+        assert code is not None and state.skin is not None
+        feeds = {**self._fused_feeds(state), "positions": state.in_order("positions", o),
+                 "skin": state.skin.astype(np.float32), "peak_directions": self._peak_dirs.astype(np.float32),
+                 "peak_radii": np.asarray(self.peaks.angular_radii, np.float32),
+                 "peak_powers": (np.asarray(self.peaks.powers) * np.asarray(brdf.tint)[None]).astype(np.float32),
+                 "peak_brdf": np.r_[code[0], code[1]].astype(np.float32)}
+        radiance, vis = self.bundle.graphs["fused_peaks"].run_unchecked(feeds)
+        state.residual_radiance = None
+        state.peak_visibility = self._to_original(vis)
+        if timer is not None:
+            timer.add("fused", time.perf_counter() - t0)
+        return self._to_original(radiance)
 
     def compute_overlapped(self, local: np.ndarray,
                            timer: FrameTimer | None = None) -> tuple[PoseBatch, np.ndarray]:

@@ -245,3 +245,36 @@ def test_errors_are_one_line(peak_run: Path, tmp_path: Path, capsys: pytest.Capt
     finally:
         p.close()
     Player(peak_run, brdf=str(tmp_path / "velvet.npz"), peaks=0).close()  # fine without peaks
+
+
+def test_fused_peaks_graph_plays_what_the_compiled_peak_path_plays(peak_run: Path) -> None:
+    """``graph="fused_peaks"`` (one ORT graph: the fused graph, the learned blockers' torch kernel and the peak term
+    with the BRDF an input) vs ``graph="fused"`` + the compiled peak kernels, per BRDF swapped at run time."""
+    from prt_torch.export.peaks_graph import PARITY_RTOL
+
+    a, b = Player(peak_run, brdf="phong", graph="fused"), Player(peak_run, brdf="phong", graph="fused_peaks")
+    try:
+        loc = a.clip_locals("wave")[1:3]
+        for name in ("phong", "lambert"):
+            a.set_brdf(name)
+            b.set_brdf(name)
+            sa, ra = a.compute(loc)
+            sb, rb = b.compute(loc)
+            # float32 trigonometry (the graph) vs float64 scalars (numba) of one cap formula: the export's bound
+            np.testing.assert_allclose(sb.peak_visibility, sa.peak_visibility, rtol=0, atol=PARITY_RTOL)
+            peak = ra - sa.residual_radiance
+            assert float(np.abs(peak).max()) > 0.1 * float(np.abs(ra).max())  # the sun is a visible part
+            np.testing.assert_allclose(rb, ra, rtol=0, atol=PARITY_RTOL * float(np.abs(peak).max())
+                                       + 1e-5 * float(np.abs(ra).max()))
+            assert sb.residual_radiance is None  # the graph returns the sum
+    finally:
+        a.close()
+        b.close()
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [({"peaks": 0}, "needs peak lights"),
+                                                   ({"peak_kind": "spheres"}, "must be 'learned'")])
+def test_fused_peaks_graph_refuses_other_peaks_in_one_line(peak_run: Path, kwargs: dict, message: str) -> None:
+    with pytest.raises(PrtError, match=message) as e:
+        Player(peak_run, brdf="phong", graph="fused_peaks", **kwargs)
+    assert "\n" not in str(e.value)
