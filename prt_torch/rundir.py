@@ -14,11 +14,14 @@ Layout (written by):
 ========================================  =========================================================
 ``dataset.zarr/``, ``character.npz``       ``prt bake`` (the store, the character)
 ``models/<kind>.pt``, ``model.pt``,        ``prt train`` (one file per kind, the default kind's hard link,
-``model.json``, ``metrics.json``           metadata, training metrics)
+``model.json``, ``metrics.json``,          metadata, training metrics; the learned peak blockers with
+``peak_blockers.npz``                      ``train.peaks``)
 ``report/``                                ``prt eval`` (``index.md``, ``index.html``, ``results.json``, plots)
 ``visibility.onnx``, ``shading.onnx``,     ``prt export`` (graphs, RPO catalogue, vertex-frame data,
 ``fused.onnx``, ``rpo/<name>.npz``,        metadata)
-``frames.npz``, ``export.json``
+``frames.npz``, ``export.json``,
+``blockers.npz``, ``peaks.onnx``,          (the blocker spheres; with learned peak blockers, the peak
+``fused_peaks.onnx``                       visibility graph and the fused graph with the peak term)
 ``compare/``                               ``prt compare`` (``table.md``, ``index.html``, ``compare.json``,
                                            ``strip.png``, ``psnr_vs_ms.png``, ``<kind>.visibility.onnx``)
 ``heldout.mp4``, ``comparison.png``,       ``prt demo`` / ``prt play``

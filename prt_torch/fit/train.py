@@ -205,7 +205,7 @@ def fit_peaks(ds: BakedDataset, run: RunDir, cfg: TrainConfig, progress: Any) ->
     settings = PeakFitSettings(steps=pc.steps, frames_per_step=pc.frames_per_step,
                                vertices_per_step=pc.vertices_per_step, learning_rate=pc.learning_rate,
                                widen_deg=pc.widen_deg, anneal=pc.anneal, eval_frames=pc.eval_frames, seed=cfg.seed,
-                               blockers=pc.blockers, capsules_per_bone=pc.capsules_per_bone)
+                               blockers=pc.blockers, capsules_per_bone=pc.capsules_per_bone, weight=pc.weight)
     done = ds.done
     rows = {s: np.intersect1d(ds.split_rows(s), np.flatnonzero(done)) if s in ds.splits else np.zeros(0, np.int64)
             for s in ("train", "heldout")}
