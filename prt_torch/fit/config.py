@@ -146,12 +146,12 @@ class PeakFitConfig(BaseModel):
     #: 4 frames, the sky's 0.265-degree sun): 21 capsules 39.1 dB diffuse, 42: 37.8 dB (learned spheres 48: 32.4,
     #: rest spheres 32.5), and 42 cost 2.6 ms a frame against 1.6 ms (11.7k vertices, one peak, one thread): 1 per bone
     capsules_per_bone: float = Field(default=1.0, ge=1.0, le=8.0)
-    #: the loss's weight per vertex-disc pair: ``cosine`` (``max(n . l, 0)``, the peak term's factor) or
-    #: ``uniform``. Measured on configs/mocap.yaml's run (held-out jumps + climb, 24 frames x 4 one-degree discs,
-    #: shading-weighted RMSE / wrong side of 0.5; then prt compare, procedural sky, learned_mlp+peaks_learned vs the
-    #: Monte-Carlo reference, diffuse image PSNR): uniform 0.0390 / 1.48 % / 32.8 dB, cosine 0.0344 / 1.38 % /
-    #: 33.8 dB; cosine with 1.5 / 2 capsules per bone 0.0314 / 0.0289, 33.5 / 34.0 dB (for 1.5-2.6 x the cost)
-    weight: Literal["cosine", "uniform"] = "cosine"
+    #: the loss's weight per vertex-disc pair: ``uniform`` or ``cosine`` (``max(n . l, 0)``, the peak term's factor).
+    #: Measured on configs/mocap.yaml's run (held-out jumps + climb, 24 frames x 4 one-degree discs, shading-weighted
+    #: RMSE: uniform 0.0390, cosine 0.0344; cosine with 1.5 / 2 capsules per bone 0.0314 / 0.0289), then prt compare
+    #: (learned_mlp+peaks_learned vs the Monte-Carlo reference, diffuse image PSNR under the sky / spiaggia / quarry):
+    #: uniform 32.2 / 36.8 / 37.3 dB, cosine 33.8 / 35.4 / 36.7 (below peaks_spheres' 37.0 on quarry): uniform
+    weight: Literal["cosine", "uniform"] = "uniform"
 
 
 class TrainConfig(BaseModel):

@@ -50,7 +50,7 @@ class PeakFitSettings:
     seed: int = 0
     blockers: str = "spheres"
     capsules_per_bone: float = 1.0
-    weight: str = "cosine"
+    weight: str = "uniform"
 
 
 @dataclass
