@@ -26,7 +26,8 @@ On the exported run (default ``runs/demo``: built-in character ~11.7k vertices, 
   the peaks' term (posing + fused call + peak visibility + peak shading, :meth:`~prt_torch.player.player.Player.
   compute`) next to the same frame without it, interleaved frame by frame: ``peaks`` (``frame_ms_on`` /
   ``frame_ms_off``, ``fps_on`` / ``fps_off``, their ``ratio``, the peak visibility's and the peak shading's ms, the
-  visibility's ``kind``);
+  visibility's ``kind``; with learned blockers and ``fused_peaks.onnx``, ``frame_ms_fused_peaks``: the same frame
+  through that one graph, graph mode ``fused_peaks``);
 
 * the posing as an ONNX graph (:mod:`prt_torch.export.posing_graph`, exported into the temporary directory; needs
   torch) next to the numpy posing: ``posing_onnx``, ``frame_posing_onnx`` (it + the fused call, two ORT calls) and
@@ -157,6 +158,11 @@ def run(args: argparse.Namespace) -> int:
     if with_peaks is not None and not with_peaks.peaks.peaks:
         with_peaks.close()
         with_peaks = None
+    # the same frame through the one graph with the peak term (learned blockers shipped in fused_peaks.onnx)
+    fused_peaks = None
+    if with_peaks is not None and with_peaks.peak_source is not None and with_peaks.peak_source.kind == "learned" \
+            and run.fused_peaks_graph_path.is_file():
+        fused_peaks = Player(run_dir, graph="fused_peaks", peaks=peaks_arg, **kw)
     meta = player.bundle.meta
     clips = list(player.character.clips)
     check(bool(clips), f"{run_dir}: the character has no clips")
@@ -192,7 +198,8 @@ def run(args: argparse.Namespace) -> int:
                                                       "shading", *(f"visibility_{p}" for p in prec_graphs),
                                                       "posing_onnx", "frame_posing_onnx", "frame_chained",
                                                       "frame_peaks", "frame_no_peaks", "peak_visibility",
-                                                      "peak_shading", "frame_peaks_numba_threads")}
+                                                      "peak_shading", "frame_peaks_numba_threads",
+                                                      "frame_fused_peaks")}
     posing_onnx = _posing_onnx(player, run, Path(tmp.name), args.threads, args.device)  # None without torch
     blocks: list[float] = []
     with console.status(f"timing {args.repeats} x {args.frames} frames on '{clip}' ..."):
@@ -228,7 +235,7 @@ def run(args: argparse.Namespace) -> int:
                     g.run_unchecked({"pose": s2.features})
                     pt[p] = time.perf_counter() - ta
                 if with_peaks is not None:  # the whole frame with its peaks, next to the same frame without them
-                    pt.update(_peak_frame(with_peaks, player, loc))
+                    pt.update(_peak_frame(with_peaks, player, loc, fused_peaks))
                 if i < args.warmup:
                     continue
                 for k, v in (("posing", t1 - t0), ("fused", t2 - t1), ("frame", t2 - t0), ("split_posing", t3 - t2),
@@ -312,7 +319,9 @@ def run(args: argparse.Namespace) -> int:
                     "ratio": off / on, "peak_visibility_ms": _median_ms(times["peak_visibility"]),
                     "peak_shading_ms": _median_ms(times["peak_shading"]),
                     "frame_ms_on_numba_threads": _median_ms(times["frame_peaks_numba_threads"]),
-                    "bytes_blockers": 0 if src is None else int(src.bytes())}
+                    "bytes_blockers": 0 if src is None else int(src.bytes()),
+                    "frame_ms_fused_peaks": _median_ms(times["frame_fused_peaks"]) if fused_peaks is not None
+                    else None}
 
     precision_rows = {}
     for p, g in prec_graphs.items():
@@ -357,8 +366,9 @@ def run(args: argparse.Namespace) -> int:
         out["scaling"]["plot"] = str(args.plot)
     player.close()
     split.close()
-    if with_peaks is not None:
-        with_peaks.close()
+    for p in (with_peaks, fused_peaks):
+        if p is not None:
+            p.close()
     tmp.cleanup()
     if args.json:
         print(json.dumps(out, indent=2, sort_keys=True))
@@ -367,11 +377,12 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _peak_frame(with_peaks: Any, without: Any, loc: np.ndarray) -> dict[str, float]:
+def _peak_frame(with_peaks: Any, without: Any, loc: np.ndarray, fused_peaks: Any = None) -> dict[str, float]:
     """Seconds of one whole frame of ``loc (1, J, 4, 4)`` with the peaks' term (``with_peaks.compute``: posing, the
     fused call, the peaks' visibility and shading) and of the same frame without it (``without``: posing and the
     fused call), then of the peaks' two parts alone on the posed frame, then of the frame with the peak kernels on
-    numba's threads (``Player.peak_threads``; the player's default is the calling thread)."""
+    numba's threads (``Player.peak_threads``; the player's default is the calling thread), then (``fused_peaks``: a
+    player of graph ``fused_peaks``) of the frame through that one graph."""
     t0 = time.perf_counter()
     state, _ = with_peaks.compute(loc)
     t1 = time.perf_counter()
@@ -386,8 +397,13 @@ def _peak_frame(with_peaks: Any, without: Any, loc: np.ndarray) -> dict[str, flo
         with_peaks.compute(loc)
     finally:
         with_peaks.peak_threads = default
-    return {"frame_peaks": t1 - t0, "frame_no_peaks": t2 - t1, "peak_visibility": t3 - t2, "peak_shading": t4 - t3,
-            "frame_peaks_numba_threads": time.perf_counter() - t4}
+    t5 = time.perf_counter()
+    out = {"frame_peaks": t1 - t0, "frame_no_peaks": t2 - t1, "peak_visibility": t3 - t2, "peak_shading": t4 - t3,
+           "frame_peaks_numba_threads": t5 - t4}
+    if fused_peaks is not None:
+        fused_peaks.compute(loc)
+        out["frame_fused_peaks"] = time.perf_counter() - t5
+    return out
 
 
 def _precision_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, device: str) -> dict[str, Any]:
@@ -632,6 +648,9 @@ def _print_tables(out: dict[str, Any]) -> None:
                   f"{pk['frame_ms_on_numba_threads']:.3f}", "", "", "", "", "")
         t.add_row(f"  peak visibility / peak shading (frame without peaks {pk['frame_ms_off']:.3f} ms)",
                   f"{pk['peak_visibility_ms']:.3f} / {pk['peak_shading_ms']:.3f}", "", "", "", "", "")
+        if pk.get("frame_ms_fused_peaks"):
+            t.add_row(f"  one graph, fused_peaks.onnx: {1e3 / pk['frame_ms_fused_peaks']:.0f} frames/s",
+                      f"{pk['frame_ms_fused_peaks']:.3f}", "", "", "", "", "")
     t.add_row(f"Embree ray trace ({out['raytrace_n_rays']} rays/vertex) + shading; speed-up",
               f"{out['raytrace_ms']:.0f}", "", f"{out['speedup_vs_raytrace']:.0f}x", "", "", "")
     if "scaling" in out:

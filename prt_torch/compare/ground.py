@@ -274,8 +274,8 @@ class FloorPeaks:
     def of(cls, lights: Any, bundles: list[Any], bake: Any) -> FloorPeaks | None:
         """From the compare's lights and the scene's run bundles; ``None`` without peaks."""
         from prt_torch.bake.peaks import DEFAULT_DISC_SIDE
-        from prt_torch.blockers.spheres import SphereSet
-        from prt_torch.player.peaks import learned_blockers_path
+        from prt_torch.blockers.capsules import load_blocker_set
+        from prt_torch.player.peaks import LearnedPeaks, learned_blockers_path
         from prt_torch.player.scene import load_spheres
 
         if lights is None or not lights.peaks:
@@ -283,7 +283,8 @@ class FloorPeaks:
         spheres: dict[str, list[Any] | None] = {"exact": None, "spheres": [load_spheres(b.run) for b in bundles]}
         learned = [learned_blockers_path(b.run) for b in bundles]
         if all(p is not None for p in learned):
-            spheres["learned"] = [SphereSet.load(p) for p in learned]
+            # the learned blockers' spheres (capsules: their row-of-spheres stand-in), what the scene player casts
+            spheres["learned"] = [LearnedPeaks(load_blocker_set(p)).spheres for p in learned]
         pk = lights.peaks
         return cls(np.array([p.direction for p in pk], np.float64).reshape(-1, 3),
                    np.array([p.angular_radius for p in pk], np.float64), np.array([p.power for p in pk], np.float64),

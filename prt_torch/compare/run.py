@@ -61,6 +61,11 @@ def load_compare_run(run_dir: str | Path | RunDir, dataset: str | Path | None = 
                       export_meta=exp, threads=threads)
 
 
+#: the unshadowed visibility's key in the first shading pass when "unshadowed" is not a compared method (the strip
+#: frame's rule)
+GAP_UNSHADOWED = "\0unshadowed"
+
+
 def heldout_frames(ctx: CompareRun, max_frames: int | None = None) -> FrameSet:
     """The done held-out frames of the dataset (``max_frames``: evenly spaced subset), with their baked
     positions and frames (the arrays the bake traced) and baked visibility."""
@@ -342,14 +347,25 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
     # -- pass 1: vertex radiance errors over every frame, and the per-frame shadow gap ----------------------------
     stats = {n: {b: RadianceStats() for b in rpos} for n in rows}
     gap = np.zeros(fs.n_frames)
-    for sl, res in shader.shade({n: vis[n] for n in vis_methods}, fs.frames, fs.positions):
+    # the strip frame (and with it the image and reference frames) is the frame of the largest shadow: sh_truth vs
+    # the unshadowed visibility, shaded here whether or not "unshadowed" is a compared method, so that the scored
+    # frames never depend on the method list
+    shade_vis = {n: vis[n] for n in vis_methods}
+    if "unshadowed" not in shade_vis:
+        from prt_torch.scoring.lighting import unshadowed_visibility
+
+        shade_vis[GAP_UNSHADOWED] = np.broadcast_to(unshadowed_visibility(ctx.order, ctx.bake), truth.shape)
+    gap_key = "unshadowed" if "unshadowed" in vis_methods else GAP_UNSHADOWED
+    for sl, res in shader.shade(shade_vis, fs.frames, fs.positions):
         per_b = row_radiance(res, sl)
         for b, per in per_b.items():
             for n in rows:
                 stats[n][b].add(sa(per[n]), sa(per[truth_of(n)]))
             if b == strip_b:
-                gap[sl] = np.abs(sa(per[TRUTH]) - sa(per["unshadowed"])).mean(axis=(1, 2)) if "unshadowed" in per \
-                    else 0.0
+                un = res[("light", b, "lobes")][gap_key]
+                if silhouette:
+                    un = un * silhouette_mask(fs.positions[sl], fs.frames[sl], camera.eye)[..., None]
+                gap[sl] = np.abs(sa(per[TRUTH]) - sa(un)).mean(axis=(1, 2))
     strip_f = int(np.argmax(gap))
     img_idx = evenly_spaced(fs.n_frames, max(image_frames, 1), must=[strip_f])
     ref_idx = evenly_spaced(fs.n_frames, reference_frames, must=[strip_f]) if reference_frames > 0 else \

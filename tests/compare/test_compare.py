@@ -16,11 +16,21 @@ LEARNED = ("learned_linear", "learned_quadratic", "learned_mlp")
 KEYS = {"vis_rel_err", "radiance_rel_rmse", "psnr_image_diffuse", "psnr_image_glossy", "bytes", "ms_per_frame", "fps"}
 
 
+#: the compare directory as ``compared`` wrote it (other tests compare the same run again, in any order)
+SNAPSHOT: dict[str, Path] = {}
+
+
 @pytest.fixture(scope="module")
-def compared(small_run: Path) -> dict[str, Any]:
+def compared(small_run: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    import shutil
+
     from prt_torch.compare import run_compare
 
-    return run_compare(small_run, max_frames=5, image_frames=2, reference_frames=1, reference_rays=64)
+    r = run_compare(small_run, max_frames=5, image_frames=2, reference_frames=1, reference_rays=64)
+    snap = tmp_path_factory.mktemp("compare_snapshot") / "compare"
+    shutil.copytree(RunDir(small_run).compare_dir, snap)
+    SNAPSHOT["dir"] = snap
+    return r
 
 
 def test_schema_and_files(small_run: Path, compared: dict[str, Any]) -> None:
@@ -50,16 +60,34 @@ def test_schema_and_files(small_run: Path, compared: dict[str, Any]) -> None:
         assert "onnxruntime" in m["runtime"] and m["bytes"] > 1000
     assert r["reference"]["frames"] == 1 and r["reference"]["noise"]["psnr_image_diffuse"] > 25
     run = RunDir(small_run)
-    for p in (run.compare_json, run.compare_table, run.compare_html, run.compare_strip, run.compare_scatter):
+    json_p, table_p, html_p, strip_p, scatter_p = (SNAPSHOT["dir"] / p.relative_to(run.compare_dir) for p in (
+        run.compare_json, run.compare_table, run.compare_html, run.compare_strip, run.compare_scatter))
+    for p in (json_p, table_p, html_p, strip_p, scatter_p):
         assert p.is_file() and p.stat().st_size > 100, p
-    assert json.loads(run.compare_json.read_text())["frames"] == 5
-    assert "learned_mlp" in run.compare_table.read_text()
-    assert run.compare_strip.name in run.compare_html.read_text()
+    assert json.loads(json_p.read_text())["frames"] == 5
+    assert "learned_mlp" in table_p.read_text()
+    assert strip_p.name in html_p.read_text()
     import imageio.v2 as iio
 
-    strip = iio.imread(run.compare_strip)
+    strip = iio.imread(strip_p)
     # truth, 4 methods, sh_truth+peaks_exact (the sky's sun: tests/compare/test_compare_peaks.py), reference; 2 rows
     assert strip.shape[1] == 7 * 640 and strip.shape[0] == 2 * 480
+
+
+def test_scored_frames_and_figures_do_not_depend_on_the_method_list(small_run: Path,
+                                                                    compared: dict[str, Any]) -> None:
+    """The strip, image and reference frames come from sh_truth vs the unshadowed visibility whatever the methods
+    compared: learned_mlp compared alone scores the frames (and so the figures) it scores among all the methods."""
+    from prt_torch.compare import run_compare
+
+    alone = run_compare(small_run, methods=["learned_mlp"], max_frames=5, image_frames=2, reference_frames=1,
+                        reference_rays=64, peaks=0)
+    full = compared
+    assert alone["reference"]["frame_indices"] == full["reference"]["frame_indices"]
+    a, f = alone["methods"]["learned_mlp"], full["methods"]["learned_mlp"]
+    # the same frames through the same code; the reference is re-estimated with the same seeds
+    for k in ("radiance_rel_rmse", "psnr_image_diffuse", "psnr_image_glossy"):
+        assert a[k] == pytest.approx(f[k], rel=1e-9), k
 
 
 def test_on_the_fly_truth_equals_the_bake(small_run: Path) -> None:

@@ -100,3 +100,37 @@ def test_reference_floor_irradiance_by_quadrature(peak_run: Path) -> None:
     pk = lights.peaks[0]
     irr = (sky_radiance()(w) * w[:, 2:3]).mean(0) * 2 * math.pi + pk.power * pk.direction[2]
     np.testing.assert_allclose(0.5 * (ea + eb), np.broadcast_to(irr * g.albedo / math.pi, ea.shape), rtol=0.01)
+
+
+def test_floor_receives_learned_capsules(peak_run: Path, tmp_path: Path) -> None:
+    """The default learned blockers are capsules (``train.peaks.blockers``): compare's floor casts them (through their
+    stand-in spheres, the scene player's rule) and is closer to the Monte-Carlo floor than the whole light on SH."""
+    from prt_torch.blockers.capsules import CapsuleSet, load_blocker_set
+    from prt_torch.compare.ground import compare_scene
+    from prt_torch.compare.reference import compare_lights
+    from prt_torch.compare.run import heldout_frames, load_compare_run
+    from prt_torch.export.run import export_run
+    from prt_torch.fit.config import TrainConfig
+    from prt_torch.fit.train import train_dataset
+    from prt_torch.rundir import RunDir
+    from prt_torch.scene.config import scene_from_dict
+    from prt_torch.scoring.rpos import player_brdfs
+    from tests.fixtures_peaks import PEAK_CONFIG
+
+    dst = tmp_path / "run"
+    shutil.copytree(peak_run, dst)
+    tc = PEAK_CONFIG["train"]
+    train_dataset(RunDir(dst).dataset_path, dst, TrainConfig(**{**tc, "peaks": {**tc["peaks"], "blockers": "capsules"}}))
+    export_run(dst)
+    run = RunDir(dst)
+    assert isinstance(load_blocker_set(run.peak_blockers_path), CapsuleSet)
+    ctx = load_compare_run(dst)
+    fs = heldout_frames(ctx, 2)
+    lights = compare_lights("sky", None, ctx.order, "auto")
+    rpos, _ = player_brdfs(ctx.order, ctx.run, ctx.character)
+    scene = scene_from_dict({"ground": {"resolution": 16}, "characters": [{}]})
+    res = compare_scene(ctx, fs, lights.lighting, {"lambert": rpos["lambert"]}, scene=scene, image_frames=1,
+                        lights=lights, reference_frames=1, reference_rays=256)
+    g = res["ground"]
+    learned = g["with_peaks"]["shexp+peaks_learned"]["vs_reference"]
+    assert learned["radiance_rel_rmse"] < 0.5 * g["vs_reference"]["radiance_rel_rmse"]
