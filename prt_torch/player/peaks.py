@@ -270,7 +270,7 @@ class LearnedPeaks(SpherePeaks):
     def vertex_last(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None,
                     directions: np.ndarray, angular_radii: np.ndarray, threads: bool = True) -> np.ndarray:
         """The player's path: the sphere or the capsule kernel, compiled, on vertex-last input."""
-        from prt_torch.blockers.capsule_cones import capsule_visibility_soa
+        from prt_torch.blockers.cones import capsule_visibility_soa
         from prt_torch.blockers.capsules import pose_capsules
 
         if self.capsules is None:
