@@ -34,14 +34,14 @@ the receiver (``d <= R``) is ignored, as in SHEXP (:mod:`prt_torch.shexp.visibil
 numpy or torch, the same code (torch is never imported here: numpy inputs never touch it); the pairs that overlap
 are found with one test without trigonometry (``gamma < a + b`` iff ``(c - p) . l > cos a sqrt(d^2 - R^2) - R sin
 a``) and only they go through the formula; the product over spheres is a sum of ``log(1 - occlusion)`` per receiver
-and peak, full occlusions counted apart. numpy inputs: one compiled numba pass does it all per (receiver, peak)
-in float64 scalars, blockers culled per block of consecutive vertices (:func:`sphere_visibility_soa`, also the
-player's path on its vertex-last arrays). The pass is the capsules' (:func:`capsule_visibility_soa`, the capsule
-rules of :mod:`prt_torch.blockers.capsule_cones`): a sphere is a capsule with ``a == b``, whose closest point to
-any ray is its centre, so one compiled kernel serves both; torch inputs: whole ``(..., P, V, S)`` arrays, the overlapping
+and peak, full occlusions counted apart. numpy inputs: one compiled numba pass does it all per (receiver, peak) in
+float64 scalars, blockers culled per block of consecutive vertices (:func:`sphere_visibility_soa`, also the player's
+path on its vertex-last arrays). The pass is the capsules' (:func:`capsule_visibility_soa`, the capsule rules of
+:mod:`prt_torch.blockers.capsule_cones`): a sphere is a capsule with ``a == b``, whose closest point to any ray is
+its centre, so one compiled kernel serves both; torch inputs: whole ``(..., P, V, S)`` arrays, the overlapping
 triples gathered again exactly and summed with ``scatter_add`` (an exportable graph, ``NonZero`` +
-``ScatterElements``). Measured on the built-in character (11.7k vertices, 48 spheres, one frame, 1 peak):
-numba ~1.0-1.6 ms (the array path it replaced: ~3.5 ms).
+``ScatterElements``). Measured on the built-in character (11.7k vertices, 48 spheres, one frame, 1 peak): numba
+~1.0-1.6 ms (the array path it replaced: ~3.5 ms).
 """
 
 from __future__ import annotations

@@ -10,16 +10,17 @@ lights) and ``angular_radii (P,)`` (radians); output ``peak_visibility (B, V, P)
 ``prt export`` writes it for a run trained with ``train.peaks`` (:data:`SHIPPER`, the export's core shipper) and
 checks it against the torch module on held-out frames (onnxruntime vs torch).
 
-``fused_peaks.onnx`` (:class:`~prt_torch.export.graphs.FusedPeaksGraph`): the fused graph (:class:`prt_torch.export.graphs.FusedGraph`,
-pose features -> visibility -> the residual's RPO radiance) with the peak lights' term in the same graph: the
-learned blockers' visibility and :func:`prt_torch.brdf.direct_graph.peak_radiance_graph` with the BRDF an input.
-Inputs: the fused graph's (:data:`~prt_torch.export.graphs.FUSED_INPUTS`, vertex axes in its order) and
-:data:`FUSED_PEAK_INPUTS`: ``positions (B, 3, V)`` (posed, world, the fused graph's vertex order), ``skin (B, J, 4,
-4)``, ``peak_directions (P, 3)``, ``peak_radii (P,)``, ``peak_powers (P, 3)`` (``E`` times the BRDF's tint) and
-``peak_brdf (1 + BRDF_PARAMS,)`` (:func:`prt_torch.brdf.direct.brdf_code`); outputs ``radiance (B, V, 3)`` (the
-whole: residual + peaks) and ``peak_visibility (B, V, P)``. A single graph for a runtime that plays one ONNX file
-(an engine, the browser); the Python player's default keeps the compiled peak kernels after ``fused.onnx``
-(faster on a CPU) and plays this one with ``graph="fused_peaks"``.
+``fused_peaks.onnx`` (:class:`~prt_torch.export.graphs.FusedPeaksGraph`): the fused graph
+(:class:`prt_torch.export.graphs.FusedGraph`, pose features -> visibility -> the residual's RPO radiance) with the
+peak lights' term in the same graph: the learned blockers' visibility and
+:func:`prt_torch.brdf.direct_graph.peak_radiance_graph` with the BRDF an input. Inputs: the fused graph's
+(:data:`~prt_torch.export.graphs.FUSED_INPUTS`, vertex axes in its order) and :data:`FUSED_PEAK_INPUTS`: ``positions
+(B, 3, V)`` (posed, world, the fused graph's vertex order), ``skin (B, J, 4, 4)``, ``peak_directions (P, 3)``,
+``peak_radii (P,)``, ``peak_powers (P, 3)`` (``E`` times the BRDF's tint) and ``peak_brdf (1 + BRDF_PARAMS,)``
+(:func:`prt_torch.brdf.direct.brdf_code`); outputs ``radiance (B, V, 3)`` (the whole: residual + peaks) and
+``peak_visibility (B, V, P)``. A single graph for a runtime that plays one ONNX file (an engine, the browser); the
+Python player's default keeps the compiled peak kernels after ``fused.onnx`` (faster on a CPU) and plays this one
+with ``graph="fused_peaks"``.
 """
 
 from __future__ import annotations
@@ -91,8 +92,8 @@ def fused_peak_example(inputs: ShipInputs, skin: np.ndarray) -> dict[str, np.nda
 
 
 def export_fused_peaks(inputs: ShipInputs, blockers: Any, skin: np.ndarray) -> dict[str, Any]:
-    """Write ``fused_peaks.onnx`` (:class:`~prt_torch.export.graphs.FusedPeaksGraph`) and check it, onnxruntime vs torch, on the held-out
-    frames; its ``export.json`` record."""
+    """Write ``fused_peaks.onnx`` (:class:`~prt_torch.export.graphs.FusedPeaksGraph`) and check it, onnxruntime vs
+    torch, on the held-out frames; its ``export.json`` record."""
     import torch
 
     from prt_torch.export.graphs import FUSED_INPUTS, FusedPeaksGraph

@@ -270,8 +270,8 @@ class LearnedPeaks(SpherePeaks):
     def vertex_last(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None,
                     directions: np.ndarray, angular_radii: np.ndarray, threads: bool = True) -> np.ndarray:
         """The player's path: the sphere or the capsule kernel, compiled, on vertex-last input."""
-        from prt_torch.blockers.cones import capsule_visibility_soa
         from prt_torch.blockers.capsules import pose_capsules
+        from prt_torch.blockers.cones import capsule_visibility_soa
 
         if self.capsules is None:
             return super().vertex_last(positions, normals, skin, directions, angular_radii, threads)

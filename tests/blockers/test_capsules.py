@@ -12,9 +12,8 @@ import pytest
 from prt_torch.bake.embree import RayScene
 from prt_torch.bake.peaks import exact_peak_visibility
 from prt_torch.blockers.capsule_cones import capsule_peak_visibility
-from prt_torch.blockers.cones import capsule_visibility_soa
 from prt_torch.blockers.capsules import CapsuleSet, fit_capsules, pose_capsules
-from prt_torch.blockers.cones import sphere_peak_visibility
+from prt_torch.blockers.cones import capsule_visibility_soa, sphere_peak_visibility
 from prt_torch.blockers.spheres import vertex_bones
 from prt_torch.errors import PrtError
 from tests.tolerance import assert_bitwise

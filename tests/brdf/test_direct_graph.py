@@ -84,5 +84,5 @@ def test_the_brdf_is_an_input_of_one_onnx_graph(tmp_path) -> None:
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     for brdf in BRDFS:
         ref = _reference(s, brdf)
-        got = sess.run(None, {k: a.numpy() for k, a in zip(names, _args(s, brdf))})[0]
+        got = sess.run(None, {k: a.numpy() for k, a in zip(names, _args(s, brdf), strict=True)})[0]
         np.testing.assert_allclose(got, ref, rtol=1e-4, atol=1e-5 * float(np.abs(ref).max()))

@@ -120,7 +120,8 @@ def test_floor_receives_learned_capsules(peak_run: Path, tmp_path: Path) -> None
     dst = tmp_path / "run"
     shutil.copytree(peak_run, dst)
     tc = PEAK_CONFIG["train"]
-    train_dataset(RunDir(dst).dataset_path, dst, TrainConfig(**{**tc, "peaks": {**tc["peaks"], "blockers": "capsules"}}))
+    capsules = {**tc, "peaks": {**tc["peaks"], "blockers": "capsules"}}
+    train_dataset(RunDir(dst).dataset_path, dst, TrainConfig(**capsules))
     export_run(dst)
     run = RunDir(dst)
     assert isinstance(load_blocker_set(run.peak_blockers_path), CapsuleSet)
