@@ -35,6 +35,9 @@ from prt_torch.shapes import check_shape
 #: default tabulation resolution: Gauss-Legendre nodes in cos(theta) x azimuths (per direction set)
 DEFAULT_N_THETA = 24
 DEFAULT_N_PHI = 48
+#: BRDF terms ``k`` of a factorisation, of an RPO and of the exported shading graphs by default (``prt export
+#: --terms``)
+DEFAULT_TERMS = 8
 
 
 def hemisphere_rule(n_theta: int = DEFAULT_N_THETA, n_phi: int = DEFAULT_N_PHI) -> tuple[np.ndarray, np.ndarray]:
@@ -116,7 +119,7 @@ def _top_svd(A: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return U[:, :k], S[:k], Vt[:k]
 
 
-def factor_brdf(brdf: object, k: int = 8, n_theta: int = DEFAULT_N_THETA, n_phi: int = DEFAULT_N_PHI,
+def factor_brdf(brdf: object, k: int = DEFAULT_TERMS, n_theta: int = DEFAULT_N_THETA, n_phi: int = DEFAULT_N_PHI,
                 table: np.ndarray | None = None) -> BRDFFactors:
     """Kautz-McCool SVD factorisation of the cosine-weighted BRDF shape to ``k`` terms.
 

@@ -27,6 +27,7 @@ from prt_torch.brdf.analytic import BRDF, BlinnPhong, CookTorrance, Lambert, Pho
 from prt_torch.brdf.factor import (
     DEFAULT_N_PHI,
     DEFAULT_N_THETA,
+    DEFAULT_TERMS,
     factor_brdf,
     hemisphere_rule,
     project_factors,
@@ -141,7 +142,7 @@ class RPO:
         return rpo
 
 
-def build_rpo(brdf: BRDF, order: int = 4, k: int = 8, n_theta: int = DEFAULT_N_THETA,
+def build_rpo(brdf: BRDF, order: int = 4, k: int = DEFAULT_TERMS, n_theta: int = DEFAULT_N_THETA,
               n_phi: int = DEFAULT_N_PHI, name: str | None = None) -> RPO:
     """Tabulate, factor (``k`` terms), project to SH (order ``n``) and build an :class:`RPO`.
 
@@ -189,7 +190,7 @@ def builtin_brdf(name: str) -> BRDF:
     return CATALOGUE[name]()  # type: ignore[operator]
 
 
-def builtin_rpo(name: str, order: int = 4, k: int = 8, cache_dir: str | os.PathLike[str] | None = None,
+def builtin_rpo(name: str, order: int = 4, k: int = DEFAULT_TERMS, cache_dir: str | os.PathLike[str] | None = None,
                 use_cache: bool = True) -> RPO:
     """A catalogue RPO, loaded from ``cache_dir`` (default :func:`default_cache_dir`) or built (< 3 s)."""
     brdf = builtin_brdf(name)

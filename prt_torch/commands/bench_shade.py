@@ -20,13 +20,15 @@ import json
 import time
 from collections.abc import Callable
 
+from prt_torch.brdf.rpo import DEFAULT_TERMS
+
 HELP = "RPO shading: matrix vs product vs fused evaluation order (and the dense triple product), side by side."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vertices", type=int, default=20000, help="number of vertices V (default 20000)")
     parser.add_argument("--order", type=int, default=4, help="SH order n (default 4)")
-    parser.add_argument("--k", type=int, default=8, help="BRDF terms (default 8)")
+    parser.add_argument("--k", type=int, default=DEFAULT_TERMS, help=f"BRDF terms (default {DEFAULT_TERMS})")
     parser.add_argument("--repeat", type=int, default=7, help="timed runs per method, best kept (default 7)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from prt_torch.brdf.rpo import DEFAULT_TERMS
+
 HELP = "Export a trained run to ONNX (visibility, RPO shading, fused graphs) with a parity check vs torch."
 
 
@@ -13,7 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--kind", default=None, choices=["linear", "quadratic", "mlp"],
                         help="model kind (default: the run's default model)")
     parser.add_argument("--brdfs", default=None, help="comma-separated named BRDFs to export as RPOs")
-    parser.add_argument("--terms", type=int, default=8, help="BRDF terms k of the shading graph (default 8; 1..64)")
+    parser.add_argument("--terms", type=int, default=DEFAULT_TERMS,
+                        help=f"BRDF terms k of the shading graph (default {DEFAULT_TERMS}; 1..64)")
     parser.add_argument("--opset", type=int, default=17, help="ONNX opset (17..20)")
     parser.add_argument("--exporter", default="torchscript", choices=["torchscript", "dynamo"])
     parser.add_argument("--force", action="store_true", help="re-export even if up to date")

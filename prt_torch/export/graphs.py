@@ -35,6 +35,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from prt_torch.brdf.rpo import DEFAULT_TERMS
 from prt_torch.sh.basis import band_of, check_order, sh_basis
 
 #: graph input names, in order
@@ -132,7 +133,7 @@ class ShadingGraph(nn.Module):
     #: the ``a_b``-weighted sum over terms (same FLOPs, a second ``(k*C, V)`` pass)
     RPO_FORMS = ("outer", "per_term")
 
-    def __init__(self, order: int, n_terms: int = 8, rpo_form: str = "outer") -> None:
+    def __init__(self, order: int, n_terms: int = DEFAULT_TERMS, rpo_form: str = "outer") -> None:
         super().__init__()
         if rpo_form not in self.RPO_FORMS:
             raise ValueError(f"unknown RPO form {rpo_form!r}: expected one of {self.RPO_FORMS}")
@@ -465,7 +466,7 @@ def set_int8_emulation(module: nn.Module, on: bool) -> None:
 class FusedGraph(nn.Module):
     """Pose features straight to radiance: :class:`VisibilityGraph` then :class:`ShadingGraph`."""
 
-    def __init__(self, model: nn.Module, order: int, n_terms: int = 8, vertex_last: bool = False,
+    def __init__(self, model: nn.Module, order: int, n_terms: int = DEFAULT_TERMS, vertex_last: bool = False,
                  cluster_sorted: bool = False, precision: str = "fp32") -> None:
         super().__init__()
         if isinstance(model, VisibilityGraph):

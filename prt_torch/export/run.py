@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.bake.deformable import is_deformable
+from prt_torch.brdf.rpo import DEFAULT_TERMS
 from prt_torch.errors import ArtifactError, MissingArtifact, check
 from prt_torch.export.shippers import ExportRequest, ShipInputs, merge_parts, shippers
 from prt_torch.io import atomic_write_json
@@ -158,7 +159,7 @@ def default_eye(positions: np.ndarray) -> np.ndarray:
 
 
 def export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None,
-               brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
+               brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = DEFAULT_TERMS, opset: int = 17,
                exporter: str = "torchscript", force: bool = False,
                console: Any = None, precision: str = DEFAULT_PRECISION, deform: Any = None) -> dict[str, Any]:
     """Export a trained run to ONNX while holding the run directory's lock (:meth:`RunDir.lock`); see
@@ -170,7 +171,7 @@ def export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None
 
 
 def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = None,
-                brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = 8, opset: int = 17,
+                brdfs: tuple[str, ...] = DEFAULT_BRDFS, n_terms: int = DEFAULT_TERMS, opset: int = 17,
                 exporter: str = "torchscript", force: bool = False,
                 console: Any = None, precision: str = DEFAULT_PRECISION, deform: Any = None) -> dict[str, Any]:
     """Export a trained run to ONNX; returns the ``export.json`` content.

@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from prt_torch.brdf.rpo import DEFAULT_TERMS
 from prt_torch.errors import PrtError, check, warn
 
 if TYPE_CHECKING:
@@ -24,12 +25,10 @@ if TYPE_CHECKING:
 #: shipped BRDFs scored by eval/compare: (diffuse, glossy)
 DIFFUSE, GLOSSY = "lambert", "phong"
 BRDFS: tuple[str, ...] = (DIFFUSE, GLOSSY)
-#: BRDF terms of the shipped RPOs (``prt export``'s ``n_terms``)
-N_TERMS = 8
 
 
 def shipping_rpos(order: int, run: RunDir | None = None, names: Sequence[str] = BRDFS,
-                  n_terms: int = N_TERMS) -> dict[str, RPO]:
+                  n_terms: int = DEFAULT_TERMS) -> dict[str, RPO]:
     """The shipped RPOs by name: the run's exported ``rpo/<name>.npz`` when the export lists it (verified
     against the export's hashes, what the player loads), else :func:`prt_torch.brdf.rpo.builtin_rpo` (what
     ``prt export`` writes) of ``order`` and ``n_terms``."""
@@ -49,20 +48,20 @@ def shipping_rpos(order: int, run: RunDir | None = None, names: Sequence[str] = 
 
 def player_brdfs(order: int, run: RunDir | None, character: Any, names: Sequence[str] = BRDFS,
                  n_terms: int | None = None) -> tuple[dict[str, RPO], dict[str, Any]]:
-    """``(rpos {name: RPO}, brdfs {name: analytic BRDF})`` scored for ``character``: :func:`shipping_rpos` of
-    ``names`` (analytic: :func:`prt_torch.brdf.rpo.builtin_brdf`), then, for a character with its own material
-    (:func:`prt_torch.player.material.has_own_material`), ``material``: the RPO file the player plays (built once
-    and cached in the run, :func:`prt_torch.rig.material.material_rpo_file`) and the analytic Cook-Torrance with the
+    """``(rpos {name: RPO}, brdfs {name: analytic BRDF})`` scored for ``character``: :func:`shipping_rpos` of ``names``
+    (analytic: :func:`prt_torch.brdf.rpo.builtin_brdf`), then, for a character with its own material
+    (:func:`prt_torch.player.material.has_own_material`), ``material``: the RPO file the player plays (built once and
+    cached in the run, :func:`prt_torch.rig.material.material_rpo_file`) and the analytic Cook-Torrance with the
     parameters it was built from (:func:`prt_torch.rig.material.material_brdf`). ``n_terms``: the export's, else
-    :data:`N_TERMS`. A material RPO that cannot be built (no scikit-learn) is left out with a warning, as the player
-    falls back to the catalogue."""
+    :data:`~prt_torch.brdf.rpo.DEFAULT_TERMS`. A material RPO that cannot be built (no scikit-learn) is left out with
+    a warning, as the player falls back to the catalogue."""
     from prt_torch.brdf.rpo import RPO, builtin_brdf
     from prt_torch.player.material import has_own_material
     from prt_torch.rig.material import MATERIAL_BRDF, character_material, material_brdf, material_rpo_file
 
     if n_terms is None:
         meta = run.export_meta() if run is not None and run.export_json.is_file() else {}
-        n_terms = int(meta.get("n_terms", N_TERMS))
+        n_terms = int(meta.get("n_terms", DEFAULT_TERMS))
     rpos = shipping_rpos(order, run, names, n_terms)
     brdfs = {n: builtin_brdf(n) for n in rpos}
     if has_own_material(character):
