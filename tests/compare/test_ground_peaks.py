@@ -104,26 +104,26 @@ def test_reference_floor_irradiance_by_quadrature(peak_run: Path) -> None:
 
 def test_floor_receives_learned_capsules(peak_run: Path, tmp_path: Path) -> None:
     """The default learned blockers are capsules (``train.peaks.blockers``): compare's floor casts them (through their
-    stand-in spheres, the scene player's rule) and is closer to the Monte-Carlo floor than the whole light on SH."""
-    from prt_torch.blockers.capsules import CapsuleSet, load_blocker_set
+    stand-in spheres, the scene player's rule) and is closer to the Monte-Carlo floor than the whole light on SH.
+    The run's learned blockers are replaced by the character's rest capsules (what the capsule fit starts from),
+    recorded in ``model.json`` as ``prt train`` records them."""
+    import json
+
+    from prt_torch.blockers.capsules import CapsuleSet, fit_capsules, load_blocker_set
     from prt_torch.compare.ground import compare_scene
     from prt_torch.compare.reference import compare_lights
     from prt_torch.compare.run import heldout_frames, load_compare_run
-    from prt_torch.export.run import export_run
-    from prt_torch.fit.config import TrainConfig
-    from prt_torch.fit.train import train_dataset
-    from prt_torch.rundir import RunDir
+    from prt_torch.rundir import RunDir, file_sha256
     from prt_torch.scene.config import scene_from_dict
     from prt_torch.scoring.rpos import player_brdfs
-    from tests.fixtures_peaks import PEAK_CONFIG
 
     dst = tmp_path / "run"
     shutil.copytree(peak_run, dst)
-    tc = PEAK_CONFIG["train"]
-    capsules = {**tc, "peaks": {**tc["peaks"], "blockers": "capsules"}}
-    train_dataset(RunDir(dst).dataset_path, dst, TrainConfig(**capsules))
-    export_run(dst)
     run = RunDir(dst)
+    fit_capsules(run.character()).save(run.peak_blockers_path)
+    meta = json.loads(run.model_json.read_text())
+    meta["files"][run.peak_blockers_path.name] = file_sha256(run.peak_blockers_path)
+    run.model_json.write_text(json.dumps(meta))
     assert isinstance(load_blocker_set(run.peak_blockers_path), CapsuleSet)
     ctx = load_compare_run(dst)
     fs = heldout_frames(ctx, 2)
