@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.blockers.spheres import SphereSet, vertex_bones
+from prt_torch.blockers.spheres import SphereSet, pose_spheres, vertex_bones
 from prt_torch.errors import check
 from prt_torch.io import atomic_write_bytes, read_npz_with_meta
 from prt_torch.shapes import check_shape
@@ -79,9 +79,9 @@ class CapsuleSet:
         return cls(spheres.bone, spheres.center, spheres.center, spheres.radius, spheres.radius_quantile)
 
     def spheres(self) -> SphereSet:
-        """The capsules as rows of spheres (for the consumers of a :class:`SphereSet`, e.g. another character's
-        blockers in a scene): per capsule ``1 + ceil(2 |b - a| / r)`` spheres of radius ``r`` evenly along the
-        segment (consecutive centres at most ``r / 2`` apart: no gap wider than 3% of the radius)."""
+        """The capsules as rows of spheres (a :class:`SphereSet` for a consumer that takes only spheres): per capsule
+        ``1 + ceil(2 |b - a| / r)`` spheres of radius ``r`` evenly along the segment (consecutive centres at most
+        ``r / 2`` apart: no gap wider than 3% of the radius)."""
         length = np.linalg.norm(self.b - self.a, axis=1)
         n = 1 + np.ceil(2 * length / self.radius).astype(np.int64)
         k = np.repeat(np.arange(self.num_capsules), n)
@@ -205,6 +205,16 @@ def pose_capsules(capsules: CapsuleSet, skin_mats: np.ndarray) -> tuple[np.ndarr
     out = [np.einsum("...ij,...j->...i", mb[..., :3, :3], e.astype(np.float64)) + mb[..., :3, 3]
            for e in (capsules.a, capsules.b)]
     return out[0].astype(np.float32), out[1].astype(np.float32)
+
+
+def posed_blockers(blockers: SphereSet | CapsuleSet, skin_mats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Posed endpoints ``a, b (..., S, 3)`` float32 of either kind of blocker set: a :class:`CapsuleSet`'s
+    (:func:`pose_capsules`), or a :class:`~prt_torch.blockers.spheres.SphereSet`'s centres twice (a sphere is a
+    capsule with ``a == b``: :func:`prt_torch.blockers.cones.capsule_visibility_soa` treats it as the sphere)."""
+    if isinstance(blockers, CapsuleSet):
+        return pose_capsules(blockers, skin_mats)
+    c = np.asarray(pose_spheres(blockers, skin_mats), dtype=np.float32)
+    return c, c
 
 
 def load_blocker_set(path: str | os.PathLike[str]) -> SphereSet | CapsuleSet:

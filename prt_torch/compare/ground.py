@@ -256,15 +256,16 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
 class FloorPeaks:
     """The floor's peak visibility ``(G, P)`` per compared frame for every kind the scene's runs have (``exact``:
     Embree against the posed characters, :func:`prt_torch.scene.peaks.floor_exact_peak_visibility`; ``spheres``:
-    every character's blocker spheres, ``learned``: every character's learned peak blockers, through
-    :func:`prt_torch.scene.peaks.floor_peak_visibility`), the medians of their run times, and the peaks and residual
-    lighting they are shaded with (:class:`~prt_torch.compare.reference.CompareLights`)."""
+    every character's blocker spheres, ``learned``: every character's learned peak blockers (capsules or spheres),
+    through :func:`prt_torch.scene.peaks.floor_peak_visibility`), the medians of their run times, and the peaks and
+    residual lighting they are shaded with (:class:`~prt_torch.compare.reference.CompareLights`)."""
 
     directions: np.ndarray
     radii: np.ndarray
     powers: np.ndarray
     residual: Any
-    spheres: dict[str, list[Any] | None]
+    #: per kind, every character's blocker set (``None``: exact)
+    blockers: dict[str, list[Any] | None]
     offset: float
     side: int
     vis: dict[str, list[np.ndarray]] = field(default_factory=dict)
@@ -275,36 +276,36 @@ class FloorPeaks:
         """From the compare's lights and the scene's run bundles; ``None`` without peaks."""
         from prt_torch.bake.peaks import DEFAULT_DISC_SIDE
         from prt_torch.blockers.capsules import load_blocker_set
-        from prt_torch.player.peaks import LearnedPeaks, learned_blockers_path
+        from prt_torch.player.peaks import learned_blockers_path
         from prt_torch.player.scene import load_spheres
 
         if lights is None or not lights.peaks:
             return None
-        spheres: dict[str, list[Any] | None] = {"exact": None, "spheres": [load_spheres(b.run) for b in bundles]}
+        blockers: dict[str, list[Any] | None] = {"exact": None, "spheres": [load_spheres(b.run) for b in bundles]}
         learned = [learned_blockers_path(b.run) for b in bundles]
         if all(p is not None for p in learned):
-            # the learned blockers' spheres (capsules: their row-of-spheres stand-in), what the scene player casts
-            spheres["learned"] = [LearnedPeaks(load_blocker_set(p)).spheres for p in learned]
+            blockers["learned"] = [load_blocker_set(p) for p in learned]  # capsules or spheres, as the scene casts
         pk = lights.peaks
         return cls(np.array([p.direction for p in pk], np.float64).reshape(-1, 3),
                    np.array([p.angular_radius for p in pk], np.float64), np.array([p.power for p in pk], np.float64),
-                   lights.residual, spheres, float(bake["ray_offset_world"]), DEFAULT_DISC_SIDE)
+                   lights.residual, blockers, float(bake["ray_offset_world"]), DEFAULT_DISC_SIDE)
 
     def add_frame(self, ground: Any, meshes: list[tuple[np.ndarray, np.ndarray]], posed: list[Any]) -> None:
         """Every kind's floor peak visibility of one frame (``meshes``: the posed characters; ``posed``: their
         :class:`~prt_torch.scene.scene.PosedMesh`)."""
-        from prt_torch.blockers import pose_spheres
+        from prt_torch.blockers.capsules import posed_blockers
         from prt_torch.scene.peaks import floor_exact_peak_visibility, floor_peak_visibility
 
-        for kind, sph in self.spheres.items():
+        for kind, sph in self.blockers.items():
             t0 = time.perf_counter()
             if sph is None:
                 v = floor_exact_peak_visibility(ground.vertices, meshes, self.directions, self.radii, self.offset,
                                                 side=self.side)
             else:
-                c = np.concatenate([pose_spheres(x, p.skin)[0] for x, p in zip(sph, posed, strict=True)])
+                ends = [posed_blockers(x, p.skin) for x, p in zip(sph, posed, strict=True)]
                 r = np.concatenate([np.asarray(x.radius, np.float32) for x in sph])
-                v = floor_peak_visibility(ground.vertices, c, r, self.directions, self.radii)
+                v = floor_peak_visibility(ground.vertices, np.concatenate([a[0] for a, _ in ends]),
+                                          np.concatenate([b[0] for _, b in ends]), r, self.directions, self.radii)
             self.secs.setdefault(kind, []).append(time.perf_counter() - t0)
             self.vis.setdefault(kind, []).append(v)
 

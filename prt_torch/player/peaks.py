@@ -218,6 +218,12 @@ class SpherePeaks(PeakVisibility):
     def __init__(self, spheres: Any) -> None:
         self.spheres = spheres
 
+    @property
+    def blockers(self) -> Any:
+        """The blocker set (a :class:`~prt_torch.blockers.spheres.SphereSet` here): what occludes this character's
+        peaks for the others and the floor in a scene (:mod:`prt_torch.player.scene`)."""
+        return self.spheres
+
     def __call__(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None, directions: np.ndarray,
                  angular_radii: np.ndarray) -> np.ndarray:
         from prt_torch.blockers.cones import sphere_peak_visibility
@@ -253,10 +259,14 @@ class LearnedPeaks(SpherePeaks):
     def __init__(self, blockers: Any) -> None:
         from prt_torch.blockers.capsules import CapsuleSet
 
-        #: the learned capsules (``None``: spheres); :attr:`spheres` is then their row-of-spheres stand-in for the
-        #: consumers of a sphere set (another character's blockers in a scene, :mod:`prt_torch.player.scene`)
+        #: the learned capsules (``None``: learned spheres, then :attr:`spheres`)
         self.capsules = blockers if isinstance(blockers, CapsuleSet) else None
-        super().__init__(blockers.spheres() if self.capsules is not None else blockers)
+        super().__init__(None if self.capsules is not None else blockers)
+
+    @property
+    def blockers(self) -> Any:
+        """The learned capsules, or the learned spheres."""
+        return self.capsules if self.capsules is not None else self.spheres
 
     def __call__(self, positions: np.ndarray, normals: np.ndarray, skin: np.ndarray | None, directions: np.ndarray,
                  angular_radii: np.ndarray) -> np.ndarray:

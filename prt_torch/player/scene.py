@@ -19,11 +19,12 @@ RESIDUAL of the light split (the SH path above shades it: the sun is not counted
 direct term with soft shadows (:mod:`prt_torch.scene.peaks`):
 
 * character ``k``: its own peak visibility (``Player.peak_source``: learned blockers, blocker spheres) times the
-  fraction the OTHER characters' spheres of the same kind leave of each disc, times the share of the disc above
+  fraction the OTHER characters' blockers of the same kind (capsules, or spheres as capsules with ``a == b``:
+  :func:`prt_torch.blockers.capsules.posed_blockers`) leave of each disc, times the share of the disc above
   the floor (with a floor); ``exact``: Embree against every posed character and the floor at once. Shaded by
   ``Player.shade_peaks`` (the run's analytic BRDF) and added to the residual radiance;
 * floor: ``albedo / pi * E_p * max(l_p . z, 0) * V_p`` with ``V_p`` the floor vertices' visibility under EVERY
-  character's posed spheres together (``exact``: Embree against the merged posed meshes). One tone
+  character's posed blockers together (``exact``: Embree against the merged posed meshes). One tone
 map for everything (``auto_tonemap`` of the first frame's radiance of all meshes; ``Player.colors``), one
 :class:`~prt_torch.player.render.MeshRenderer` with one mesh per character plus the ground, the camera of
 :func:`~prt_torch.player.player.camera_eye` around the placed characters' rest meshes.
@@ -69,18 +70,20 @@ def blockers_path(run: RunDir) -> Path | None:
     return p if p.is_file() else None
 
 
-def compiled_kernel(positions: np.ndarray, normals: np.ndarray, centers: np.ndarray, radii: np.ndarray,
-                    directions: np.ndarray, angular_radii: np.ndarray) -> np.ndarray:
-    """The player's compiled cone-sphere kernel (:func:`prt_torch.blockers.cones.sphere_visibility_soa`, the same
-    numbers as :func:`prt_torch.blockers.cones.sphere_peak_visibility`) with the latter's signature, ``(V, 3)`` or
+def compiled_kernel(positions: np.ndarray, normals: np.ndarray, ends_a: np.ndarray, ends_b: np.ndarray,
+                    radii: np.ndarray, directions: np.ndarray, angular_radii: np.ndarray) -> np.ndarray:
+    """The player's compiled cone kernel (:func:`prt_torch.blockers.cones.capsule_visibility_soa`, the same numbers
+    as :func:`prt_torch.blockers.capsule_cones.capsule_peak_visibility`) with the latter's signature, ``(V, 3)`` or
     ``(B, V, 3)`` receivers (a :data:`prt_torch.scene.peaks.Kernel`)."""
-    from prt_torch.blockers.cones import sphere_visibility_soa
+    from prt_torch.blockers.cones import capsule_visibility_soa
 
     one = np.ndim(positions) == 2
     pos = np.asarray(positions)[None] if one else np.asarray(positions)
     nrm = np.asarray(normals)[None] if one else np.asarray(normals)
-    cen = np.asarray(centers)[None] if one else np.asarray(centers)
-    out = sphere_visibility_soa(pos.transpose(0, 2, 1), nrm.transpose(0, 2, 1), cen, radii, directions, angular_radii)
+    ea = np.asarray(ends_a)[None] if one else np.asarray(ends_a)
+    eb = np.asarray(ends_b)[None] if one else np.asarray(ends_b)
+    out = capsule_visibility_soa(pos.transpose(0, 2, 1), nrm.transpose(0, 2, 1), ea, eb, radii, directions,
+                                 angular_radii)
     return out[0] if one else out
 
 
@@ -205,14 +208,15 @@ class ScenePlayer:
         pk = self.primary.peaks
         self.n_peaks = len(pk.peaks)
         self.peak_kind: str | None = None
-        self.peak_spheres: list[Any] = []
+        #: per character, the blocker set its peaks' occluders come from (a CapsuleSet or a SphereSet)
+        self.peak_blockers: list[Any] = []
         if self.n_peaks == 0:
             return
         kinds = {None if p.peak_source is None else p.peak_source.kind for p in self.actor_players}
         check(len(kinds) == 1, f"scene: the characters' peak visibilities differ: {sorted(map(str, kinds))}")
         self.peak_kind = kinds.pop()
         if self.peak_kind in ("spheres", "learned"):
-            self.peak_spheres = [p.peak_source.spheres for p in self.actor_players]
+            self.peak_blockers = [p.peak_source.blockers for p in self.actor_players]
 
     @property
     def eye(self) -> np.ndarray:
@@ -282,18 +286,18 @@ class ScenePlayer:
         return p.peaks.directions @ rz.T, p.peaks.angular_radii, p.peaks.powers
 
     def _peak_occluders(self, states: list[PoseBatch]) -> list[Any]:
-        """Per character what occludes the peaks for the others and the floor: ``(centres (1, S_k, 3), radii
-        (S_k,))`` of its posed peak spheres, or (``exact``) its posed mesh ``(vertices (V_k, 3), faces)``; ``[]``
-        without peaks."""
-        from prt_torch.blockers import pose_spheres
+        """Per character what occludes the peaks for the others and the floor: ``(ends_a (1, S_k, 3), ends_b (1,
+        S_k, 3), radii (S_k,))`` of its posed peak blockers (:func:`prt_torch.blockers.capsules.posed_blockers`),
+        or (``exact``) its posed mesh ``(vertices (V_k, 3), faces)``; ``[]`` without peaks."""
+        from prt_torch.blockers.capsules import posed_blockers
 
         if not self.n_peaks or self.peak_kind is None or (len(self.actors) == 1 and self.ground is None):
             return []
         if self.peak_kind == "exact":
             return [(st.positions_vx3(0), np.asarray(a.character.faces)) for a, st in zip(self.actors, states,
                                                                                           strict=True)]
-        return [(pose_spheres(s, st.skin), np.asarray(s.radius, dtype=np.float32))
-                for s, st in zip(self.peak_spheres, states, strict=True)]
+        return [(*posed_blockers(s, st.skin), np.asarray(s.radius, dtype=np.float32))
+                for s, st in zip(self.peak_blockers, states, strict=True)]
 
     def character_peak_visibility(self, k: int, state: PoseBatch, occ: list[Any]) -> np.ndarray:
         """``(1, V_k, P)`` in-scene peak visibility of character ``k`` (module docstring): its own
@@ -317,9 +321,10 @@ class ScenePlayer:
             return v[None]
         v = p.peak_visibility(state)  # its own (Player.peak_source; no blockers: the horizon share only)
         if len(self.actors) > 1 and occ:
-            oc = np.concatenate([c for j, (c, _) in enumerate(occ) if j != k], axis=1)
-            orad = np.concatenate([r for j, (_, r) in enumerate(occ) if j != k])
-            v = v * others_peak_visibility(pos, oc, orad, d, a, kernel=compiled_kernel)
+            oa = np.concatenate([o[0] for j, o in enumerate(occ) if j != k], axis=1)
+            ob = np.concatenate([o[1] for j, o in enumerate(occ) if j != k], axis=1)
+            orad = np.concatenate([o[2] for j, o in enumerate(occ) if j != k])
+            v = v * others_peak_visibility(pos, oa, ob, orad, d, a, kernel=compiled_kernel)
         if self.ground is not None:
             v = v * above_floor_share(d, a)
         return v
@@ -338,9 +343,10 @@ class ScenePlayer:
         if self.peak_kind == "exact":
             src = self.primary.peak_source
             return floor_exact_peak_visibility(g.vertices, occ, d, a, src.offset, side=src.side)
-        c = np.concatenate([c[0] for c, _ in occ])
-        r = np.concatenate([r for _, r in occ])
-        return floor_peak_visibility(g.vertices, c, r, d, a, kernel=compiled_kernel)
+        ea = np.concatenate([o[0][0] for o in occ])
+        eb = np.concatenate([o[1][0] for o in occ])
+        r = np.concatenate([o[2] for o in occ])
+        return floor_peak_visibility(g.vertices, ea, eb, r, d, a, kernel=compiled_kernel)
 
     def shade_ground_peaks(self, visibility: np.ndarray) -> np.ndarray:
         """``(G, 3)`` the floor's peak radiance for ``visibility (G, P)``: Lambert, albedo / pi x E x cos x V."""

@@ -5,17 +5,21 @@ A peak light (:class:`prt_torch.sg.split.PeakLight`) is a uniform disc of half-a
 the visible fraction of the disc in ``[0, 1]`` (docs/DESIGN.md, the rule of :func:`prt_torch.bake.peaks.
 exact_peak_visibility` and :func:`prt_torch.blockers.cones.sphere_peak_visibility`).
 
+Occluders are capsules ``(a, b, r)`` posed by the characters' skins: the learned peak capsules as they are, and a
+sphere set (the blocker spheres, learned spheres) as capsules with ``a == b`` (:func:`prt_torch.blockers.capsules.
+posed_blockers`), all through the one cone kernel (:func:`prt_torch.blockers.capsule_cones.
+capsule_peak_visibility`, compiled in the player).
+
 * **Floor** (:func:`floor_peak_visibility`): the floor's vertices are receivers under EVERY character's posed
-  spheres at once (the blocker spheres, or the learned peak blockers): one call of the cone-sphere kernel with all
-  of them, so the spheres multiply as independent occluders and the horizon share enters once. A sphere that
-  crosses the floor plane is kept whole (a ray leaving the floor upwards meets only its part above the plane), and a
-  floor vertex INSIDE a sphere (under a foot) is in its shadow for every peak (every upward ray leaves the sphere
-  through its upper part), where the kernel would ignore the sphere. ``exact``: :func:`floor_exact_peak_visibility`,
-  Embree against the merged posed meshes of every character.
+  blockers at once: one call of the cone kernel with all of them, so they multiply as independent occluders and
+  the horizon share enters once. A blocker that crosses the floor plane is kept whole (a ray leaving the floor
+  upwards meets only its part above the plane), and a floor vertex INSIDE one (under a foot) is in its shadow for
+  every peak (every upward ray leaves it through its upper part), where the kernel would ignore it. ``exact``:
+  :func:`floor_exact_peak_visibility`, Embree against the merged posed meshes of every character.
 * **Floor shading** (:func:`floor_peak_radiance`): Lambert, ``albedo / pi * E_p * max(l_p . z, 0) * V_p``, summed
   over the peaks (the floor's normal is ``+z``; the albedo RGB as :class:`~prt_torch.scene.ground.Ground`'s).
 * **Between characters** (:func:`others_peak_visibility`): a character's own peak visibility times the fraction
-  the OTHER characters' spheres leave of each disc (the kernel with the receiver's normal along the light, so that
+  the OTHER characters' blockers leave of each disc (the kernel with the receiver's normal along the light, so that
   the horizon share, already in the character's own visibility, is not applied twice), and, with a floor, times
   the share of each disc above the floor plane (:func:`above_floor_share`: the floor as a half-space occluder, as
   :func:`prt_torch.scene.compose.halfspace_visibility` is for SH).
@@ -36,18 +40,18 @@ from prt_torch.shapes import check_shape
 #: the floor's normal (world up)
 UP = np.array([0.0, 0.0, 1.0])
 
-#: a cone-sphere kernel: ``(positions (..., V, 3), normals (..., V, 3), centers (..., S, 3), radii (S,), directions
-#: (P, 3), angular_radii (P,)) -> (..., V, P)``, float32 arrays (default :func:`prt_torch.blockers.cones.
-#: sphere_peak_visibility`; the player passes its compiled one)
+#: a cone-capsule kernel: ``(positions (..., V, 3), normals (..., V, 3), ends_a (..., S, 3), ends_b (..., S, 3),
+#: radii (S,), directions (P, 3), angular_radii (P,)) -> (..., V, P)``, float32 arrays (default
+#: :func:`prt_torch.blockers.capsule_cones.capsule_peak_visibility`; the player passes its compiled one)
 Kernel = Callable[..., np.ndarray]
 
 
 def _kernel(kernel: Kernel | None) -> Kernel:
     if kernel is not None:
         return kernel
-    from prt_torch.blockers.cones import sphere_peak_visibility
+    from prt_torch.blockers.capsule_cones import capsule_peak_visibility
 
-    return sphere_peak_visibility
+    return capsule_peak_visibility
 
 
 def _peaks(directions: np.ndarray, angular_radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -57,37 +61,45 @@ def _peaks(directions: np.ndarray, angular_radii: np.ndarray) -> tuple[np.ndarra
     return d, r
 
 
-def inside_spheres(positions: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """``(..., V)`` bool: receivers ``positions (..., V, 3)`` inside any sphere ``centers (..., S, 3)``, ``radii
-    (S,)`` (strictly: ``|p - c| < r``)."""
+def inside_capsules(positions: np.ndarray, ends_a: np.ndarray, ends_b: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """``(G,)`` bool: points ``positions (G, 3)`` inside any capsule ``ends_a, ends_b (S, 3)``, ``radii (S,)``
+    (strictly: the distance to the segment ``< r``; a sphere: ``a == b``)."""
     p = np.asarray(positions, dtype=np.float64)
-    c = np.asarray(centers, dtype=np.float64)
-    if c.shape[-2] == 0:
-        return np.zeros(p.shape[:-1], dtype=bool)
-    d2 = (p * p).sum(-1)[..., :, None] + (c * c).sum(-1)[..., None, :] - 2 * p @ np.swapaxes(c, -1, -2)
-    return (d2 < np.asarray(radii, dtype=np.float64) ** 2).any(-1)
+    a = np.asarray(ends_a, dtype=np.float64)
+    w = np.asarray(ends_b, dtype=np.float64) - a
+    if a.shape[0] == 0:
+        return np.zeros(p.shape[0], dtype=bool)
+    ww = (w * w).sum(-1)  # (S,)
+    d = p[:, None, :] - a[None]  # (G, S, 3)
+    t = np.clip((d * w[None]).sum(-1) / np.where(ww > 0, ww, 1.0), 0.0, 1.0)  # closest segment point
+    q = d - t[..., None] * w[None]
+    return ((q * q).sum(-1) < np.asarray(radii, dtype=np.float64) ** 2).any(-1)
 
 
-def floor_peak_visibility(vertices: np.ndarray, centers: np.ndarray, radii: np.ndarray, directions: np.ndarray,
-                          angular_radii: np.ndarray, kernel: Kernel | None = None) -> np.ndarray:
-    """``(G, P)`` float32: the visible fraction of each peak's disc at each floor vertex under spheres (module doc).
+def floor_peak_visibility(vertices: np.ndarray, ends_a: np.ndarray, ends_b: np.ndarray, radii: np.ndarray,
+                          directions: np.ndarray, angular_radii: np.ndarray,
+                          kernel: Kernel | None = None) -> np.ndarray:
+    """``(G, P)`` float32: the visible fraction of each peak's disc at each floor vertex under capsules (module doc).
 
     Args:
         vertices: ``(G, 3)`` floor vertices (normal ``+z``).
-        centers: ``(S, 3)`` posed sphere centres of every character (concatenated); radii: ``(S,)`` (> 0).
+        ends_a, ends_b: ``(S, 3)`` posed capsule endpoints of every character (concatenated; spheres: the centres
+            twice); radii: ``(S,)`` (> 0).
         directions: ``(P, 3)`` unit peak directions; angular_radii: ``(P,)`` half-angles (radians).
-        kernel: the cone-sphere kernel (:data:`Kernel`).
+        kernel: the cone kernel (:data:`Kernel`).
     """
     pos = np.ascontiguousarray(vertices, dtype=np.float32)
     check_shape(pos, "G 3", name="floor vertices")
-    cen = np.ascontiguousarray(centers, dtype=np.float32)
-    dims = check_shape(cen, "S 3", name="floor occluder centres")
+    ea = np.ascontiguousarray(ends_a, dtype=np.float32)
+    dims = check_shape(ea, "S 3", name="floor occluder endpoints a")
+    eb = np.ascontiguousarray(ends_b, dtype=np.float32)
+    check_shape(eb, "S 3", name="floor occluder endpoints b", dims=dims)
     rad = np.ascontiguousarray(radii, dtype=np.float32)
     check_shape(rad, "S", name="floor occluder radii", dims=dims)
     d, a = _peaks(directions, angular_radii)
     up = np.ascontiguousarray(np.broadcast_to(UP.astype(np.float32), pos.shape))
-    vis = np.array(_kernel(kernel)(pos, up, cen, rad, d, a), dtype=np.float32)
-    vis[inside_spheres(pos, cen, rad)] = 0.0
+    vis = np.array(_kernel(kernel)(pos, up, ea, eb, rad, d, a), dtype=np.float32)
+    vis[inside_capsules(pos, ea, eb, rad)] = 0.0
     return vis
 
 
@@ -133,20 +145,22 @@ def above_floor_share(directions: np.ndarray, angular_radii: np.ndarray) -> np.n
     return np.asarray(horizon_fraction(UP[None].astype(np.float32), d, a), dtype=np.float32)[0]
 
 
-def others_peak_visibility(positions: np.ndarray, centers: np.ndarray, radii: np.ndarray, directions: np.ndarray,
-                           angular_radii: np.ndarray, kernel: Kernel | None = None) -> np.ndarray:
-    """``(..., V, P)`` float32: the fraction of each peak's disc that the spheres ``centers (..., S, 3)``, ``radii
-    (S,)`` (the OTHER characters') leave at receivers ``positions (..., V, 3)``, with no horizon share (module doc);
-    the constant 1 without spheres. ``kernel``: :data:`Kernel`."""
+def others_peak_visibility(positions: np.ndarray, ends_a: np.ndarray, ends_b: np.ndarray, radii: np.ndarray,
+                           directions: np.ndarray, angular_radii: np.ndarray,
+                           kernel: Kernel | None = None) -> np.ndarray:
+    """``(..., V, P)`` float32: the fraction of each peak's disc that the capsules ``ends_a, ends_b (..., S, 3)``,
+    ``radii (S,)`` (the OTHER characters'; spheres: the centres twice) leave at receivers ``positions (..., V, 3)``,
+    with no horizon share (module doc); the constant 1 without blockers. ``kernel``: :data:`Kernel`."""
     pos = np.ascontiguousarray(positions, dtype=np.float32)
     check_shape(pos, "... V 3", name="receiver positions")
     d, a = _peaks(directions, angular_radii)
-    cen = np.ascontiguousarray(centers, dtype=np.float32)
+    ea = np.ascontiguousarray(ends_a, dtype=np.float32)
+    eb = np.ascontiguousarray(ends_b, dtype=np.float32)
     out = np.ones((*pos.shape[:-1], d.shape[0]), dtype=np.float32)
-    if cen.shape[-2] == 0:
+    if ea.shape[-2] == 0:
         return out
     rad = np.ascontiguousarray(radii, dtype=np.float32)
     for p in range(d.shape[0]):  # P <= 4 peaks: the receiver's normal along each light (horizon share 1)
         along = np.ascontiguousarray(np.broadcast_to(d[p], pos.shape))
-        out[..., p] = _kernel(kernel)(pos, along, cen, rad, d[p:p + 1], a[p:p + 1])[..., 0]
+        out[..., p] = _kernel(kernel)(pos, along, ea, eb, rad, d[p:p + 1], a[p:p + 1])[..., 0]
     return out

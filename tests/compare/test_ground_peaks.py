@@ -103,9 +103,9 @@ def test_reference_floor_irradiance_by_quadrature(peak_run: Path) -> None:
 
 
 def test_floor_receives_learned_capsules(peak_run: Path, tmp_path: Path) -> None:
-    """The default learned blockers are capsules (``train.peaks.blockers``): compare's floor casts them (through their
-    stand-in spheres, the scene player's rule) and is closer to the Monte-Carlo floor than the whole light on SH.
-    The run's learned blockers are replaced by the character's rest capsules (what the capsule fit starts from),
+    """The default learned blockers are capsules (``train.peaks.blockers``): compare's floor casts them (the cone
+    kernel with their segments, the scene player's rule) and is closer to the Monte-Carlo floor than the whole light on
+    SH. The run's learned blockers are replaced by the character's rest capsules (what the capsule fit starts from),
     recorded in ``model.json`` as ``prt train`` records them."""
     import json
 

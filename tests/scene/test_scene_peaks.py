@@ -25,7 +25,7 @@ from prt_torch.scene.peaks import (
     floor_exact_peak_visibility,
     floor_peak_radiance,
     floor_peak_visibility,
-    inside_spheres,
+    inside_capsules,
     others_peak_visibility,
 )
 from tests.blockers.test_cone_occlusion import binomial_tol, icosphere
@@ -72,7 +72,7 @@ def test_floor_penumbra_vs_closed_form(tilt_deg: float, radius_deg: float, kerne
                         np.linspace(p0 + eps, u0 - eps, 9), np.linspace(u1 + eps, p1 - eps, 9),  # penumbrae
                         p0 - eps - np.geomspace(1e-3, 2.0, 5), p1 + eps + np.geomspace(1e-3, 2.0, 5)])  # lit
     pts = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
-    v = floor_peak_visibility(pts, np.array([[0.0, 0.0, height]]), np.array([radius]), light, np.array([a]),
+    v = floor_peak_visibility(pts, *[np.array([[0.0, 0.0, height]])] * 2, np.array([radius]), light, np.array([a]),
                               kernel=kernel)[:, 0]
     assert v.shape == (x.size,) and v.dtype == np.float32
     assert (v[:7] == 0).all()  # exactly: the kernel counts a full occlusion apart
@@ -95,7 +95,7 @@ def test_floor_shadow_centre_of_a_small_sphere(tilt_deg: float, kernel) -> None:
     b = math.asin(radius * math.cos(t) / height)
     assert b < a
     centre = np.array([[-height * math.tan(t), 0.0, 0.0]])
-    v = floor_peak_visibility(centre, np.array([[0.0, 0.0, height]]), np.array([radius]), light, np.array([a]),
+    v = floor_peak_visibility(centre, *[np.array([[0.0, 0.0, height]])] * 2, np.array([radius]), light, np.array([a]),
                               kernel=kernel)[0, 0]
     assert v == pytest.approx(1 - (1 - math.cos(b)) / (1 - math.cos(a)), abs=2e-5)
 
@@ -111,8 +111,8 @@ def test_floor_penumbra_vs_embree_and_inside_a_sphere() -> None:
     verts, faces, inner = icosphere(center, radius)
     side = 16
     got = floor_exact_peak_visibility(pts, [(verts, faces)], light, np.array([a]), 1e-4, side=side)[:, 0]
-    lo = floor_peak_visibility(pts, center[None], np.array([radius]), light, np.array([a]))[:, 0]
-    hi = floor_peak_visibility(pts, center[None], np.array([inner]), light, np.array([a]))[:, 0]
+    lo = floor_peak_visibility(pts, center[None], center[None], np.array([radius]), light, np.array([a]))[:, 0]
+    hi = floor_peak_visibility(pts, center[None], center[None], np.array([inner]), light, np.array([a]))[:, 0]
     tol = binomial_tol((lo + hi) / 2, side * side)
     assert np.all(got >= lo - tol) and np.all(got <= hi + tol)
     assert ((got > 0.05) & (got < 0.95)).sum() >= 15  # the penumbrae are sampled
@@ -120,10 +120,37 @@ def test_floor_penumbra_vs_embree_and_inside_a_sphere() -> None:
     low = np.array([0.0, 0.0, 0.1])
     verts, faces, _ = icosphere(low, radius)
     under = np.array([[0.05, 0.02, 0.0], [-0.1, 0.1, 0.0]])
-    assert inside_spheres(under, low[None], np.array([radius])).all()
-    v = floor_peak_visibility(under, low[None], np.array([radius]), light, np.array([a]))
+    assert inside_capsules(under, low[None], low[None], np.array([radius])).all()
+    v = floor_peak_visibility(under, low[None], low[None], np.array([radius]), light, np.array([a]))
     assert (v == 0).all()
     assert (floor_exact_peak_visibility(under, [(verts, faces)], light, np.array([a]), 1e-4) == 0).all()
+
+
+def test_floor_under_a_capsule_vs_embree_and_inside_it() -> None:
+    """A lying capsule (a forearm over the floor) through the scene's floor rule vs Embree rays against the
+    triangulated capsule; floor points under a capsule that crosses the floor are inside it and in its shadow."""
+    from tests.blockers.test_capsules import capsule_mesh
+
+    a_end, b_end, radius = np.array([-0.3, 0.0, 0.5]), np.array([0.3, 0.1, 0.55]), 0.12
+    t, ang = math.radians(25.0), math.radians(4.0)
+    light = np.array([[0.0, math.sin(t), math.cos(t)]])
+    gx, gy = np.meshgrid(np.linspace(-0.6, 0.6, 25), np.linspace(-0.6, 0.4, 21))
+    pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
+    verts, faces, inner = capsule_mesh(a_end, b_end, radius)
+    side = 16
+    got = floor_exact_peak_visibility(pts, [(verts, faces)], light, np.array([ang]), 1e-4, side=side)[:, 0]
+    # the mesh lies between the capsules of its inscribed and its outer radius: Embree between their shadows, up to
+    # the rays' binomial noise and the kernel's nearest-sphere penumbra (a 4-degree disc: a few percent at most)
+    lo = floor_peak_visibility(pts, a_end[None], b_end[None], np.array([radius]), light, np.array([ang]))[:, 0]
+    hi = floor_peak_visibility(pts, a_end[None], b_end[None], np.array([inner]), light, np.array([ang]))[:, 0]
+    assert ((lo > 0.05) & (lo < 0.95)).sum() >= 10 and (lo == 0).sum() >= 10  # penumbra and umbra on the grid
+    tol = binomial_tol((lo + hi) / 2, side * side) + 0.03
+    assert np.all(got >= lo - tol) and np.all(got <= hi + tol)
+    low_a, low_b = np.array([-0.2, 0.0, 0.05]), np.array([0.2, 0.0, 0.05])
+    under = np.array([[0.15, 0.02, 0.0], [-0.1, -0.05, 0.0], [0.0, 0.0, 0.0]])
+    assert inside_capsules(under, low_a[None], low_b[None], np.array([0.1])).all()
+    assert not inside_capsules(np.array([[0.35, 0.0, 0.0]]), low_a[None], low_b[None], np.array([0.1])).any()
+    assert (floor_peak_visibility(under, low_a[None], low_b[None], np.array([0.1]), light, np.array([ang])) == 0).all()
 
 
 def test_floor_shading_and_floor_share_in_closed_form() -> None:
@@ -138,7 +165,7 @@ def test_floor_shading_and_floor_share_in_closed_form() -> None:
     np.testing.assert_allclose(share, [1.0, 0.0, 0.5], atol=1e-6)
     # others' occlusion has no horizon share: a receiver whose normal faces away still sees an unblocked disc whole
     pos = np.zeros((1, 2, 3), np.float32)
-    got = others_peak_visibility(pos, np.zeros((1, 0, 3)), np.zeros(0), d[:1], np.array([0.1]))
+    got = others_peak_visibility(pos, np.zeros((1, 0, 3)), np.zeros((1, 0, 3)), np.zeros(0), d[:1], np.array([0.1]))
     assert (got == 1).all()
 
 
@@ -185,12 +212,12 @@ def test_scene_floor_peak_term_vs_numpy(peak_scene_run: Path) -> None:
         posed = pose_actor(a, a.locals(np.array([frame]), sp.fps))
         np.testing.assert_allclose(f.states[0].positions_vx3(0), posed.positions[0], atol=1e-4)
         pk = sp.primary.peaks
-        c = posed_spheres_by_hand(sp.peak_spheres[0], posed.skin[0])
+        c = posed_spheres_by_hand(sp.peak_blockers[0], posed.skin[0])
         up = np.tile([0.0, 0.0, 1.0], (g.n_vertices, 1))
-        v = sphere_peak_visibility(g.vertices.astype(np.float64), up, c, sp.peak_spheres[0].radius.astype(np.float64),
+        v = sphere_peak_visibility(g.vertices.astype(np.float64), up, c, sp.peak_blockers[0].radius.astype(np.float64),
                                    pk.directions, pk.angular_radii)
         d2 = ((g.vertices[:, None, :] - c[None]) ** 2).sum(-1)
-        v[(d2 < sp.peak_spheres[0].radius[None] ** 2).any(1)] = 0.0
+        v[(d2 < sp.peak_blockers[0].radius[None] ** 2).any(1)] = 0.0
         np.testing.assert_allclose(f.ground_peak_visibility, v, atol=2e-4)
         assert (v < 0.5).sum() >= 3  # the character's shadow is on the floor
         term = (g.albedo / math.pi)[None] * ((v * np.maximum(pk.directions[:, 2], 0)) @ pk.powers)
