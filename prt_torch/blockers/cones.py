@@ -322,24 +322,33 @@ def capsule_visibility_soa(positions: np.ndarray, normals: np.ndarray, ends_a: n
     Returns:
         ``(B, V, P)`` in ``[0, 1]``: float64 for float64 positions, else float32.
     """
+    return _blocker_pass(positions, normals, ends_a, ends_b, radii, directions, angular_radii, threads, "capsule")
+
+
+def _blocker_pass(positions: np.ndarray, normals: np.ndarray, ends_a: np.ndarray, ends_b: np.ndarray,
+                  radii: np.ndarray, directions: np.ndarray, angular_radii: np.ndarray, threads: bool,
+                  what: str) -> np.ndarray:
+    """The checks and the compiled pass of :func:`capsule_visibility_soa` and :func:`sphere_visibility_soa`
+    (``what``: ``"capsule"`` or ``"sphere"``, for the errors)."""
     dtype = np.float64 if np.asarray(positions).dtype == np.float64 else np.float32
     pos = np.ascontiguousarray(positions, dtype=dtype)
     check_shape(pos, "B 3 V", name="peak visibility: positions")
     nrm = np.ascontiguousarray(normals, dtype=dtype)
     check_shape(nrm, tuple(pos.shape), name="peak visibility: normals")
+    ends = "endpoints a" if what == "capsule" else "centres"
     ea = np.ascontiguousarray(ends_a, dtype=dtype)
-    check_shape(ea, (pos.shape[0], "S", 3), name="peak visibility: capsule endpoints a")
-    eb = np.ascontiguousarray(ends_b, dtype=dtype)
-    check_shape(eb, tuple(ea.shape), name="peak visibility: capsule endpoints b")
+    check_shape(ea, (pos.shape[0], "S", 3), name=f"peak visibility: {what} {ends}")
+    eb = ea if ends_b is ends_a else np.ascontiguousarray(ends_b, dtype=dtype)
+    check_shape(eb, tuple(ea.shape), name=f"peak visibility: {what} endpoints b")
     rad = np.ascontiguousarray(radii, dtype=dtype)
-    check_shape(rad, (ea.shape[1],), name="peak visibility: capsule radii")
-    check(bool((rad > 0).all()), "capsule radii must be > 0")
+    check_shape(rad, (ea.shape[1],), name=f"peak visibility: {what} radii")
+    check(bool((rad > 0).all()), f"{what} radii must be > 0")
     d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
     ar = np.ascontiguousarray(angular_radii, dtype=np.float64).reshape(-1)
     check(ar.shape == (d.shape[0],) and bool(((ar > 0) & (ar <= math.pi / 2)).all()),
           "peak angular radii must be (P,) in (0, pi/2] radians")
     out = np.empty((pos.shape[0], pos.shape[2], d.shape[0]), dtype)
-    if out.size:
+    if out.size:  # a sphere is a capsule with a == b (the segment's closest point is its centre): one kernel
         (_capsule_visibility_soa if threads else _capsule_visibility_soa_serial)(pos, nrm, ea, eb, rad, d, ar, out)
     return out
 
@@ -363,24 +372,7 @@ def sphere_visibility_soa(positions: np.ndarray, normals: np.ndarray, centers: n
     Returns:
         ``(B, V, P)`` visible fractions in ``[0, 1]``: float64 for float64 positions, else float32.
     """
-    dtype = np.float64 if np.asarray(positions).dtype == np.float64 else np.float32
-    pos = np.ascontiguousarray(positions, dtype=dtype)
-    check_shape(pos, "B 3 V", name="peak visibility: positions")
-    nrm = np.ascontiguousarray(normals, dtype=dtype)
-    check_shape(nrm, tuple(pos.shape), name="peak visibility: normals")
-    cen = np.ascontiguousarray(centers, dtype=dtype)
-    check_shape(cen, (pos.shape[0], "S", 3), name="peak visibility: sphere centres")
-    rad = np.ascontiguousarray(radii, dtype=dtype)
-    check_shape(rad, (cen.shape[1],), name="peak visibility: sphere radii")
-    d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
-    ar = np.ascontiguousarray(angular_radii, dtype=np.float64).reshape(-1)
-    check(ar.shape == (d.shape[0],) and bool(((ar > 0) & (ar <= math.pi / 2)).all()),
-          "peak angular radii must be (P,) in (0, pi/2] radians")
-    out = np.empty((pos.shape[0], pos.shape[2], d.shape[0]), dtype)
-    if out.size:
-        # a sphere is a capsule with a == b (the segment's closest point is its centre): one compiled kernel
-        (_capsule_visibility_soa if threads else _capsule_visibility_soa_serial)(pos, nrm, cen, cen, rad, d, ar, out)
-    return out
+    return _blocker_pass(positions, normals, centers, centers, radii, directions, angular_radii, threads, "sphere")
 
 
 def is_tracing(xp: ModuleType) -> bool:
