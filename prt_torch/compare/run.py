@@ -189,9 +189,9 @@ def _peak_kinds(ctx: CompareRun, fs: FrameSet, lights: Any, vis_methods: list[st
     timed: dict[str, _PeakKind] = {}
     for k in sorted({k for _, k in rows.values()}, key=PEAK_KINDS.index):
         pv = peak_visibility(k, run, ctx.character, offset=offset)
-        caps = getattr(pv, "capsules", None)  # the learned capsules (their sphere stand-in is pv.spheres)
-        n_sph = len(caps.radius) if caps is not None else len(pv.spheres.radius) if hasattr(pv, "spheres") else 0
-        shape = "capsule" if caps is not None else "sphere"
+        blockers = getattr(pv, "blockers", None)  # spheres or learned capsules (exact: none)
+        n_sph = 0 if blockers is None else len(blockers.radius)
+        shape = "capsule" if getattr(pv, "capsules", None) is not None else "sphere"
         what = {"exact": f"Embree ({DEFAULT_DISC_SIDE}x{DEFAULT_DISC_SIDE} disc rays per vertex and peak)",
                 "spheres": f"numba (cone-sphere kernel, {n_sph} blocker spheres)",
                 "learned": f"numba (cone-{shape} kernel, {n_sph} learned peak {shape}s)"}[k]
