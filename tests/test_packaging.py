@@ -77,6 +77,7 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
         "prt_torch.blockers.capsules: sklearn": "learned capsules are fitted (k-means splits) by prt train; the player "
                                                 "only loads and poses them",
         "prt_torch.blockers.cones: torch": _TORCH_TENSORS,
+        "prt_torch.blockers.capsule_cones: torch": _TORCH_TENSORS,
         "prt_torch.player.peaks -> prt_torch.bake.embree": _EXACT_PEAKS,
         "prt_torch.player.player -> prt_torch.bake.embree": _EXACT_PEAKS,
         "prt_torch.player.scene -> prt_torch.bake.embree": _EXACT_PEAKS,
