@@ -18,6 +18,11 @@ rendering):
 
 Reported: median ms and frames/s of each, the per-step medians of the scene ones (``pose``, ``characters``,
 ``ground``), and ``ratio_vs_player`` (frame time / the player's).
+
+``--characters K``: instead, the floor + ``K`` copies of the run's character on a square grid
+(:func:`grid_scene`: spaced by 1.5 x the rest mesh's horizontal extent so that no two meet, each a quarter of the
+clip later than the previous), timed alone; prints ``{"fps", "characters", "steps", ...}`` (``steps``: the
+per-step median ms).
 """
 
 from __future__ import annotations
@@ -41,6 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     parser.add_argument("--peaks", default="auto", help="peak lights of every configuration: auto|0|K (default auto; "
                                                         "not 0: the *_no_peaks scenes too)")
+    parser.add_argument("--characters", type=int, default=None,
+                        help="time the floor + K copies of the run's character on a grid instead (1..64)")
     parser.add_argument("--json", action="store_true", help="print the JSON only")
 
 
@@ -67,6 +74,9 @@ def run(args: argparse.Namespace) -> int:
     run_dir = RunDir(args.run)
     clip = args.clip or _heldout_clip(run_dir)
     console = Console(stderr=True)
+    if args.characters is not None:
+        limits.check_int(args.characters, "--characters", 1, 64)
+        return _bench_grid(run_dir, clip, args, peaks, console)
     one = scene_from_dict({"characters": [{"clip": clip}]})
     one_floor = scene_from_dict({"ground": {}, "characters": [{"clip": clip}]})
     two_floor = two if two.ground is not None else two.model_copy(update={"ground": one_floor.ground})
@@ -120,6 +130,57 @@ def run(args: argparse.Namespace) -> int:
         steps = ", ".join(f"{k} {v:.1f}" for k, v in o["steps_ms"].items())
         console.print(f"  {name}: {o['ms']:.1f} ms = {o['fps']:.1f} frames/s ({o['ratio_vs_player']:.2f}x the "
                       f"player; {o['characters']} character(s), floor {o['ground_vertices']} vertices; ms: {steps})")
+    print(json.dumps(out))
+    return 0
+
+
+def grid_scene(character: Any, clip: str, k: int, clip_seconds: float) -> Any:
+    """A floor + ``k`` copies of ``character`` playing ``clip`` on a square grid: spaced by 1.5 x the rest mesh's
+    horizontal extent (no two characters meet however they move within their own footprint), each a quarter of the
+    clip (``clip_seconds``) later than the previous."""
+    import math
+
+    from prt_torch.scene.config import scene_from_dict
+
+    rest = np.asarray(character.rest_vertices)
+    step = 1.5 * float(np.ptp(rest[:, :2], axis=0).max())
+    cols = math.ceil(math.sqrt(k))
+    chars = [{"clip": clip, "offset": [step * (i % cols), step * (i // cols), 0.0],
+              "time_offset": (0.25 * i * clip_seconds) % max(clip_seconds, 1e-9)} for i in range(k)]
+    return scene_from_dict({"ground": {}, "characters": chars})
+
+
+def _bench_grid(run_dir: Any, clip: str, args: argparse.Namespace, peaks: Any, console: Any) -> int:
+    """``--characters K``: the floor + K characters (:func:`grid_scene`), timed alone."""
+    from prt_torch.player.scene import SCENE_STEPS, ScenePlayer
+    from prt_torch.player.timing import FrameTimer
+
+    ch = run_dir.character()
+    c = ch.clip(clip)
+    scene = grid_scene(ch, clip, args.characters, c.num_frames / c.fps)
+    sp = ScenePlayer(run_dir, scene=scene, threads=args.threads, window_size=(240, 320), peaks=peaks)
+    try:
+        timer = FrameTimer()
+        sp.compute(0)  # warm-up
+        n = min(args.frames, sp.n_frames)
+        for i in range(n):
+            t0 = time.perf_counter()
+            sp.compute(i, timer)
+            timer.add("frame", time.perf_counter() - t0)
+        s = timer.summary(("frame",))
+        ms = s["compute_ms_median"]
+        out = {"fps": 1e3 / ms, "characters": len(sp.actors), "ms": ms, "frames": n, "clip": clip,
+               "run": str(run_dir.path), "peaks": sp.n_peaks, "peak_visibility": sp.peak_kind,
+               "ground_vertices": 0 if sp.ground is None else sp.ground.n_vertices,
+               "vertices": int(sum(a.character.num_vertices for a in sp.actors)),
+               "steps": {k: s["steps_ms"][k]["median"] for k in SCENE_STEPS if k in s["steps_ms"]}}
+    finally:
+        sp.close()
+    if not args.json:
+        steps = ", ".join(f"{k} {v:.1f}" for k, v in out["steps"].items())
+        console.print(f"[bold]prt bench scene[/] {run_dir.path}: floor + {out['characters']} character(s) "
+                      f"({clip}, {n} frames, compute path, medians): {ms:.1f} ms = {out['fps']:.1f} frames/s "
+                      f"(ms: {steps})")
     print(json.dumps(out))
     return 0
 

@@ -229,8 +229,6 @@ def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
     from prt_torch.rundir import RunDir
     from prt_torch.scene.load import load_scene
 
-    if args.motion is not None:
-        raise PrtError("--motion is not supported with --ground/--scene: use --clip")
     if args.renderer != "onnx":
         raise PrtError(f"--ground/--scene play the run's learned models (--renderer onnx), not --renderer "
                        f"{args.renderer}")
@@ -249,7 +247,9 @@ def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
         clip = _clip_of_run(run, character, clip)  # a split's clip (e.g. a held-out frame range of a clip)
     player = ScenePlayer(args.run, scene=scene, ground=args.ground, clip=clip, fps=args.fps, env=args.env,
                          brdf=args.brdf, threads=args.threads, window_size=(h, w), peaks=args.peaks,
-                         peak_kind=args.peak_visibility)
+                         peak_kind=args.peak_visibility, motion=args.motion, motion_fps=args.motion_fps)
+    for _, report in player.motions.values():
+        console.print(report.summary())
     try:
         if args.light_angle:
             import numpy as np

@@ -120,6 +120,9 @@ class ScenePlayer:
         scene: the scene; ``None``: the run's recorded scene (``RunDir.scene_json``), else one character.
         ground: force a floor (``GroundConfig()`` defaults) when the scene has none (``prt play --ground``).
         clip: the clip of entries without one (a name or a :class:`Clip`); ``None``: their ``clip`` must be set.
+        motion: a motion file (``.bvh``, a humanoid ``.glb``/``.gltf``) played by the entries without a clip
+            instead, retargeted onto each one's character (:func:`prt_torch.rig.retarget.retarget_file`, once per
+            run; ``motion_fps``: its rate, default the character's clips'); not with ``clip``.
         fps: the scene's frame rate (default: the primary character's clip rate).
         env, brdf, threads, window_size: as :class:`Player` (one Player per distinct run).
         peaks, peak_kind: the peak lights and their visibility, as :class:`Player` (module docstring).
@@ -129,8 +132,13 @@ class ScenePlayer:
                  ground: bool = False, clip: str | Clip | None = None, fps: float | None = None,
                  env: str | os.PathLike[str] | None = None, brdf: str | None = None, threads: int = 2,
                  window_size: tuple[int, int] = (480, 640), peaks: int | str | None = None,
-                 peak_kind: str | None = None) -> None:
+                 peak_kind: str | None = None, motion: str | os.PathLike[str] | None = None,
+                 motion_fps: float | None = None) -> None:
+        check(clip is None or motion is None, "scene: give a clip or a motion file, not both")
         self.run = RunDir.of(run_dir)
+        self._motion = (motion, motion_fps)
+        #: per run, the motion file retargeted onto its character, and the retargeting report
+        self.motions: dict[Path, tuple[Clip, Any]] = {}
         self._peak_args = {"peaks": peaks, "peak_kind": peak_kind}
         if scene is None:
             scene = run_scene(self.run) or SceneConfig()
@@ -148,6 +156,17 @@ class ScenePlayer:
             self.close()
             raise
 
+    def _retargeted(self, p: Player) -> Clip:
+        """The motion file retargeted onto ``p``'s character (once per run)."""
+        from prt_torch.rig.retarget import retarget_file
+
+        key = p.bundle.run.path.resolve()
+        if key not in self.motions:
+            path, fps = self._motion
+            assert path is not None
+            self.motions[key] = retarget_file(path, p.character, fps=fps)
+        return self.motions[key][0]
+
     def _player(self, run_path: str | None, env: Any, brdf: str | None, threads: int) -> Player:
         key = (self.run.path if run_path is None else Path(run_path)).resolve()
         if key not in self.players:
@@ -160,6 +179,8 @@ class ScenePlayer:
         for k, e in enumerate(entries):
             p = self._player(e.run, env, brdf, threads)
             name = e.clip if e.clip is not None else clip
+            if name is None and self._motion[0] is not None:
+                name = self._retargeted(p)
             if name is None:
                 raise PrtError(f"scene character {k}: no clip (set scene.characters[{k}].clip or pass --clip)")
             c = p.character.clip(name) if isinstance(name, str) else name

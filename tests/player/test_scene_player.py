@@ -191,3 +191,56 @@ def test_play_scene_file_with_its_own_clips_needs_no_clip_flag(scene_run, tmp_pa
     assert len(err) == 1 and "no clip" in err[0], err
     assert main(["play", str(scene_run), "--clip", "wave", "--motion", str(good), "--png", str(out)]) == 2
     assert "not both" in capsys.readouterr().err
+
+
+def test_scene_plays_a_motion_file_retargeted(scene_run, shared_data, tmp_path, capsys) -> None:  # noqa: F811
+    """``prt play RUN --motion FILE.bvh --ground``: the scene's character plays the CMU clip retargeted onto it
+    (the same locals as :func:`prt_torch.rig.retarget.retarget_file` gives), on the floor; with ``--clip`` too, a
+    one-line error."""
+    from prt_torch.cli import main
+    from prt_torch.player.scene import ScenePlayer
+    from prt_torch.rig.retarget import retarget_file
+
+    bvh = shared_data / "motion" / "01_01.bvh"
+    sp = ScenePlayer(scene_run, ground=True, motion=bvh, window_size=(60, 80))
+    try:
+        want, _ = retarget_file(bvh, sp.primary.character)
+        got = sp.actors[0].clip
+        assert got.name == want.name and np.asarray(got.local).shape == np.asarray(want.local).shape
+        np.testing.assert_allclose(np.asarray(got.local), np.asarray(want.local), atol=1e-9)
+        f = sp.compute(5)
+        assert f.ground_radiance is not None and np.isfinite(f.radiance[0]).all()
+    finally:
+        sp.close()
+    out = tmp_path / "png"
+    assert main(["play", str(scene_run), "--motion", str(bvh), "--ground", "--png", str(out), "--max-frames", "2",
+                 "--size", "60x80"]) == 0
+    assert (out / "frame_00001.png").is_file()
+    capsys.readouterr()
+    with pytest.raises(PrtError, match="not both"):
+        ScenePlayer(scene_run, ground=True, motion=bvh, clip="wave")
+
+
+def test_bench_scene_characters_json(scene_run, capsys) -> None:  # noqa: F811
+    """``prt bench scene RUN --characters K --json``: the floor + K characters on a grid, ``{"fps", "characters",
+    "steps"}`` with the frame's median and its steps (no timing asserted); the grid's characters never meet (the
+    scene's separation check runs every frame)."""
+    import json
+
+    from prt_torch.cli import main
+    from prt_torch.commands.bench_scene import grid_scene
+
+    capsys.readouterr()
+    assert main(["bench", "scene", str(scene_run), "--characters", "3", "--frames", "2", "--clip", "wave",
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["characters"] == 3 and out["frames"] == 2 and out["fps"] == pytest.approx(1e3 / out["ms"])
+    assert {"pose", "characters", "ground"} <= set(out["steps"]) and out["ground_vertices"] > 0
+    from prt_torch.rundir import RunDir
+
+    ch = RunDir(scene_run).character()
+    sc = grid_scene(ch, "wave", 5, 3.0)
+    offs = np.array([c.offset for c in sc.characters])
+    d = np.linalg.norm(offs[:, None, :2] - offs[None, :, :2], axis=-1) + np.eye(5) * 1e9
+    assert d.min() >= 1.5 * float(np.ptp(np.asarray(ch.rest_vertices)[:, :2], axis=0).max()) * (1 - 1e-9)
+    assert main(["bench", "scene", str(scene_run), "--characters", "0", "--json"]) == 2
