@@ -60,8 +60,9 @@ if TYPE_CHECKING:
 STAGES = ("bake", "train", "export")
 #: the ONNX graphs of an export, by role
 GRAPHS = ("visibility", "shading", "fused")
-#: the graphs an export ships for some runs only (``fused_peaks``: a run with learned peak blockers)
-OPTIONAL_GRAPHS = ("fused_peaks",)
+#: the graphs an export ships for some runs only (``fused_peaks``: a run with learned peak blockers; ``latent``: the
+#: pose -> reduced-output graph of the compiled frame path, a model with per-cluster output bases)
+OPTIONAL_GRAPHS = ("fused_peaks", "latent")
 
 _DATASET = "dataset.zarr"
 _CHARACTER = "character.npz"
@@ -75,6 +76,7 @@ _REPORT = "report"
 _RESULTS_JSON = "results.json"
 _EXPORT_JSON = "export.json"
 _FRAMES = "frames.npz"
+_DECODE = "decode.npz"  # the compiled frame path's per-cluster output bases (prt_torch.export.compiled)
 _BLOCKERS = "blockers.npz"
 _PEAK_BLOCKERS = "peak_blockers.npz"
 _PEAKS_ONNX = "peaks.onnx"
@@ -372,6 +374,18 @@ class RunDir:
     def frames_path(self) -> Path:
         """``frames.npz``: cluster labels / axes / bones for the player's vertex frames."""
         return self.path / _FRAMES
+
+    @property
+    def decode_path(self) -> Path:
+        """``decode.npz``: the per-cluster output bases of the compiled frame path, as the fused graph holds them
+        (:mod:`prt_torch.export.compiled`, ``prt export`` of a model with per-cluster bases)."""
+        return self.path / _DECODE
+
+    @property
+    def latent_graph_path(self) -> Path:
+        """``latent.onnx``: ``pose (B, A) -> z (B, G, K)``, the model up to its output bases (the compiled frame
+        path's first step, :mod:`prt_torch.export.compiled`)."""
+        return self.graph_path("latent")
 
     @property
     def rpo_dir(self) -> Path:

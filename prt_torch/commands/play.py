@@ -38,8 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-frames", "--frames", dest="max_frames", type=int, default=None,
                         help="play at most this many frames")
     parser.add_argument("--fps", type=float, default=None, help="resample the clip to this rate")
-    parser.add_argument("--graph", default="fused", choices=["fused", "split", "overlap", "fused_peaks", "pipeline"],
-                        help="one fused ORT graph, visibility then shading, visibility on a worker thread "
+    parser.add_argument("--graph", default=None,
+                        choices=["compiled", "fused", "split", "overlap", "fused_peaks", "pipeline"],
+                        help="default: compiled on the CPU (a small ORT graph, then one compiled decode + shade "
+                             "pass) when the export ships it, else fused; or one fused ORT graph, visibility then "
+                             "shading, visibility on a worker thread "
                              "overlapping the numpy posing (best when a core is free), the fused graph with the "
                              "peak lights and their learned shadows inside it (fused_peaks.onnx), or (a cloth "
                              "sequence) the next frame's features, visibility and frames on a worker while this one "
@@ -199,7 +202,7 @@ def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
     # one is shaded: 504 vs 274 frames/s split on the 7.7k flag, same radiance) unless --graph split / overlap;
     # its fused graph (measured slower: the cluster order costs a permutation in and out) is DeformablePlayer(graph=
     # "fused")
-    graph = "pipeline" if args.graph == "fused" else args.graph
+    graph = "pipeline" if args.graph in (None, "fused") else args.graph
     console = Console(stderr=True)
     player = DeformablePlayer(args.run, env=args.env, brdf=args.brdf, graph=graph, threads=args.threads,
                               window_size=(h, w), device=args.device)

@@ -22,46 +22,24 @@ Shading, per vertex, with local lighting ``l (C, 3)``, visibility ``v (C,)``, lo
 and the local lighting of ``K`` ZH lobes ``(s_K, g_K (n, 3))`` is ``l = sum_K g_K[band] * y(F s_K)``;
 ``L_c`` is computed as ``sum_{K, i} g_K[band i, c] zz_i y_i(F s_K)`` (one small GEMM).
 SH are evaluated as polynomials: a monomial table of the direction (built degree by degree with row
-gathers, :class:`SHPolynomial`) times a constant matrix (:func:`sh_polynomial`), one MatMul in the graph
+gathers, :class:`SHPolynomial`) times a constant matrix (:func:`prt_torch.sh.polynomial.sh_polynomial`), one MatMul in the graph
 instead of a long chain of small ops.
 """
 
 from __future__ import annotations
-
-import itertools
-from functools import cache
 
 import numpy as np
 import torch
 from torch import nn
 
 from prt_torch.brdf.rpo import DEFAULT_TERMS
-from prt_torch.sh.basis import band_of, check_order, sh_basis
+from prt_torch.sh.basis import band_of
+from prt_torch.sh.polynomial import monomial_recursion
 
 #: graph input names, in order
 SHADING_INPUTS = ("visibility", "frames", "view_dirs", "lobe_dirs", "lobe_coeffs", "rpo_M", "rpo_w", "rpo_tint")
 FUSED_INPUTS = ("pose",) + SHADING_INPUTS[1:]
 VISIBILITY_INPUTS = ("pose",)
-
-
-@cache
-def sh_polynomial(order: int) -> tuple[np.ndarray, np.ndarray]:
-    """Exact polynomial form of the real SH basis of ``order``.
-
-    Returns:
-        ``exponents (P, 3)`` int64 - monomials ``x^a y^b z^c`` with ``a + b + c < order``;
-        ``coeffs (P, C)`` float64 - so that ``sh_basis(d) = monomials(d) @ coeffs`` for any ``d``
-        (the basis of :mod:`prt_torch.sh.basis` is a polynomial of degree ``< order`` in x, y, z,
-        recovered here by an exact least-squares solve on random non-unit points).
-    """
-    check_order(order)
-    exps = np.array([e for e in itertools.product(range(order), repeat=3) if sum(e) < order], dtype=np.int64)
-    pts = np.random.default_rng(0).uniform(-1.0, 1.0, size=(4 * len(exps) + 16, 3))
-    mono = np.prod(pts[:, None, :] ** exps[None, :, :], axis=-1)
-    target = sh_basis(pts, order, check=False)
-    coeffs, *_ = np.linalg.lstsq(mono, target, rcond=None)
-    coeffs[np.abs(coeffs) < 1e-12] = 0.0
-    return exps, coeffs
 
 
 class SHPolynomial(nn.Module):
@@ -77,24 +55,19 @@ class SHPolynomial(nn.Module):
 
     def __init__(self, order: int) -> None:
         super().__init__()
-        exps, coeffs = sh_polynomial(order)
+        exps, parent, comp, coeffs_t = monomial_recursion(order)
         self.order = order
-        all_exps = [tuple(int(v) for v in e) for e in exps]
-        levels: list[list[tuple[int, int, int]]] = [[(0, 0, 0)], [(1, 0, 0), (0, 1, 0), (0, 0, 1)]][:order]
+        degree = np.array([sum(e) for e in exps])
         self._steps: list[tuple[str, str]] = []
         for deg in range(2, order):
-            prev = levels[-1]
-            cur = sorted((e for e in all_exps if sum(e) == deg), reverse=True)
-            comp = [next(i for i in range(3) if e[i] > 0) for e in cur]
-            parent = [prev.index(tuple(e[j] - (j == i) for j in range(3))) for e, i in zip(cur, comp, strict=True)]
-            self.register_buffer(f"parent_{deg}", torch.as_tensor(parent, dtype=torch.long), persistent=False)
-            self.register_buffer(f"comp_{deg}", torch.as_tensor(comp, dtype=torch.long), persistent=False)
+            rows = np.flatnonzero(degree == deg)
+            prev_start = int(np.flatnonzero(degree == deg - 1)[0])
+            self.register_buffer(f"parent_{deg}", torch.as_tensor(parent[rows] - prev_start, dtype=torch.long),
+                                 persistent=False)
+            self.register_buffer(f"comp_{deg}", torch.as_tensor(comp[rows], dtype=torch.long), persistent=False)
             self._steps.append((f"parent_{deg}", f"comp_{deg}"))
-            levels.append(cur)
-        self.exps = [e for lev in levels for e in lev]
-        perm = [all_exps.index(e) for e in self.exps]
-        self.register_buffer("coeffs_t", torch.as_tensor(coeffs[perm].T.copy(), dtype=torch.float32),
-                             persistent=False)
+        self.exps = exps
+        self.register_buffer("coeffs_t", torch.as_tensor(coeffs_t, dtype=torch.float32), persistent=False)
 
     def forward(self, d: torch.Tensor) -> torch.Tensor:
         return self.coeffs_t @ self.monomials(d)  # (C, P) @ (..., P, N)

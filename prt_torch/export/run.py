@@ -212,11 +212,13 @@ def _export_run(run_dir: str | os.PathLike[str] | RunDir, kind: str | None = Non
     model = load_model(run, kind)
     model_hash = file_sha256(mpath)
     request = ExportRequest(run=run, precision=precision, opset=opset, exporter=exporter, deform=deform,
-                            deformable=deform is not None or dataset_is_deformable(run))
+                            deformable=deform is not None or dataset_is_deformable(run), per_cluster=per_cluster(model))
+    from prt_torch.export.compiled import SHIPPER as COMPILED_SHIPPER
     from prt_torch.export.peaks_graph import SHIPPER as PEAKS_SHIPPER
 
-    # the core's learned peak graph, then the method parts (SHIPPERS), all planned before anything is written
-    plans = [(s, s.plan(request)) for s in (PEAKS_SHIPPER, *shippers())]
+    # the core's compiled-path data and learned peak graph, then the method parts (SHIPPERS), all planned before
+    # anything is written
+    plans = [(s, s.plan(request)) for s in (COMPILED_SHIPPER, PEAKS_SHIPPER, *shippers())]
     ship_files = tuple(f for _, plan in plans for f in plan.files)
     core_key = {"model_sha256": model_hash, "n_terms": n_terms, "opset": opset, "exporter": exporter,
                 "brdfs": sorted(brdfs), "precision": precision, "format": FORMAT,

@@ -49,6 +49,7 @@ class ExportRequest:
         exporter: ``"torchscript"`` or ``"dynamo"``.
         deform: the caller's deformable spec (``export_run(deform=)``; ``None``: the shipper builds it from the run).
         deformable: whether the run is deformable (``deform`` given, or the dataset is a deformable one).
+        per_cluster: whether the exported model has per-cluster output bases (the compiled frame path's decode).
     """
 
     run: RunDir
@@ -57,6 +58,7 @@ class ExportRequest:
     exporter: str
     deform: Any = None
     deformable: bool = False
+    per_cluster: bool = False
 
 
 @dataclass(frozen=True)

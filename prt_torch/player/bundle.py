@@ -29,13 +29,15 @@ from prt_torch.runtime.session import OrtGraph
 @dataclass(frozen=True)
 class RPOTensors:
     """An RPO as the shading graph takes it: ``M (k, C, C)``, ``w (k, C)`` zero-padded to the graph's
-    ``k``, ``tint (3,)``, all float32, plus its ``name`` and SH ``order``."""
+    ``k``, ``tint (3,)``, all float32, plus its ``name`` and SH ``order``; ``u (k, C)`` (padded alike) the light
+    factors ``M`` is built from (``M_b = sum_k u_bk Gamma_{., ., k}``: the compiled frame path's product form)."""
 
     name: str
     order: int
     M: np.ndarray
     w: np.ndarray
     tint: np.ndarray
+    u: np.ndarray
 
 
 def load_rpo_tensors(path: str | os.PathLike[str], order: int, n_terms: int) -> RPOTensors:
@@ -48,18 +50,21 @@ def load_rpo_tensors(path: str | os.PathLike[str], order: int, n_terms: int) -> 
     rpo = RPO.load(path)
     M = np.asarray(rpo.M, dtype=np.float32)
     w = np.asarray(rpo.w, dtype=np.float32)
+    u = np.asarray(rpo.u, dtype=np.float32)
     c = order * order
-    check(int(rpo.order) == order and M.shape[1:] == (c, c) and w.shape[1:] == (c,),
+    check(int(rpo.order) == order and M.shape[1:] == (c, c) and w.shape[1:] == (c,) and u.shape == w.shape,
           f"RPO {rpo.name!r} has SH order {rpo.order} (M {M.shape}), the model order {order}")
     k = M.shape[0]
     check(k <= n_terms, f"RPO {rpo.name!r} has {k} BRDF terms, the shading graph at most {n_terms}")
     if k < n_terms:
         M = np.concatenate([M, np.zeros((n_terms - k, c, c), np.float32)])
         w = np.concatenate([w, np.zeros((n_terms - k, c), np.float32)])
+        u = np.concatenate([u, np.zeros((n_terms - k, c), np.float32)])
     tint = np.asarray(rpo.tint, dtype=np.float32).reshape(3)
     check(bool(np.isfinite(M).all() and np.isfinite(w).all() and np.isfinite(tint).all()),
           f"RPO {rpo.name!r} contains NaN or Inf")
-    return RPOTensors(str(rpo.name), order, np.ascontiguousarray(M), np.ascontiguousarray(w), tint)
+    return RPOTensors(str(rpo.name), order, np.ascontiguousarray(M), np.ascontiguousarray(w), tint,
+                      np.ascontiguousarray(u))
 
 
 class RunBundle:

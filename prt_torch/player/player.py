@@ -6,6 +6,9 @@ Per frame (``Player.compute``)::
 
     local (B, J, 4, 4) --FK--> skin (B, J, 4, 4) --LBS--> positions, normals (B, 3, V)
         --cluster axes--> frames (B, 9, V);  pose features (B, A)   (prt_torch.player.posing, vertex-last)
+    [compiled] the default on the CPU (prt_torch.player.compiled): ORT latent.onnx(pose) -> z, then ONE compiled
+             pass decodes and shades each vertex tile while it is in cache -> radiance (B, V, 3) (= fused.onnx within
+             the export's parity tolerance); its posing is compiled too (two passes: joints, then vertices)
     [fused]  ORT fused.onnx(pose, frames, view dirs, lobes, RPO) -> radiance (B, V, 3)
     [split]  ORT visibility.onnx(pose) -> (B, V, C);  ORT shading.onnx(...) -> radiance
     [overlap] split, with visibility.onnx running on a worker thread while numpy poses (compute_overlapped)
@@ -68,9 +71,17 @@ from prt_torch.rig.clip import Clip
 from prt_torch.rundir import RunDir
 from prt_torch.runtime.session import OrtGraph
 
-GRAPH_MODES = ("fused", "split", "overlap", "fused_peaks")
+GRAPH_MODES = ("compiled", "fused", "split", "overlap", "fused_peaks")
 #: the graph modes that play a graph in the export's cluster-sorted vertex order
-CLUSTER_ORDER_MODES = ("fused", "fused_peaks")
+CLUSTER_ORDER_MODES = ("compiled", "fused", "fused_peaks")
+
+
+def default_graph(bundle: RunBundle, device: str) -> str:
+    """The graph mode a player plays when none is asked for: ``compiled`` on the CPU when the export ships its data
+    (:func:`prt_torch.player.compiled.has_compiled_path`), else ``fused``."""
+    from prt_torch.player.compiled import has_compiled_path
+
+    return "compiled" if device == "cpu" and has_compiled_path(bundle) else "fused"
 
 
 @dataclass
@@ -140,9 +151,10 @@ class Player:
         env: HDR environment map path, or ``None`` for the procedural sun + sky.
         brdf: BRDF name of the run's RPO catalogue (or an RPO ``.npz``, or ``material``); ``None``: the character's
             own material when it has one (:attr:`shades_material`), else the catalogue's first.
-        graph: ``"fused"`` (one ORT call per frame), ``"split"`` (visibility then shading) or ``"overlap"``
-            (split, with the visibility call running on a worker thread during the numpy posing:
-            :meth:`compute_overlapped`).
+        graph: ``"compiled"`` (the compiled frame path: a 40 kB ORT graph, then one numba pass; the default on the
+            CPU when the export ships it), ``"fused"`` (one ORT call per frame), ``"split"`` (visibility then
+            shading), ``"overlap"`` (split, with the visibility call running on a worker thread during the numpy
+            posing: :meth:`compute_overlapped`) or ``"fused_peaks"``; ``None``: :func:`default_graph`.
         threads: onnxruntime intra-op threads.
         window_size: render size in pixels.
         exposure: a fixed :class:`~prt_torch.player.tonemap.ToneMap`; ``None`` picks one from the first frame.
@@ -169,7 +181,7 @@ class Player:
     shades_material: bool = True
 
     def __init__(self, run_dir: str | os.PathLike[str] | RunDir, env: str | os.PathLike[str] | None = None,
-                 brdf: str | None = None, graph: str = "fused", threads: int = 2,
+                 brdf: str | None = None, graph: str | None = None, threads: int = 2,
                  window_size: tuple[int, int] = (480, 640), exposure: ToneMap | None = None, n_lobes: int = 3,
                  blas_threads: int | None = 1, spinning: bool = False, device: str = "cpu",
                  crowd_chunk: int | None = None, peaks: int | str | None = None, peak_kind: str | None = None) -> None:
@@ -177,7 +189,7 @@ class Player:
               f"unknown peak visibility {peak_kind!r}: expected one of {', '.join(PEAK_KINDS)}")
         check(crowd_chunk is None or int(crowd_chunk) >= 1, f"crowd_chunk must be >= 1, got {crowd_chunk}")
         self.crowd_chunk = None if crowd_chunk is None else int(crowd_chunk)
-        check(graph in GRAPH_MODES, f"unknown graph mode {graph!r}: expected one of {GRAPH_MODES}")
+        check(graph is None or graph in GRAPH_MODES, f"unknown graph mode {graph!r}: expected one of {GRAPH_MODES}")
         self._blas_limit: Any = None
         if blas_threads is not None:
             from threadpoolctl import threadpool_limits
@@ -189,7 +201,15 @@ class Player:
         self.device = device
         #: the fused graph's vertex order (``None``: original); the posing runs in it
         self.vertex_order = self.bundle.vertex_order
+        graph = default_graph(self.bundle, device) if graph is None else graph
         self.graph = graph
+        #: the compiled frame path (graph ``compiled``; ``None`` otherwise)
+        self.compiled: Any = None
+        if graph == "compiled":
+            check(device == "cpu", "graph 'compiled' runs on the CPU: play graph 'fused' on another device")
+            from prt_torch.player.compiled import CompiledFrame
+
+            self.compiled = CompiledFrame(self.bundle, threads=threads, spinning=spinning)
         self.character = self.bundle.character
         self.order = self.bundle.order
         self.window_size = window_size
@@ -218,7 +238,12 @@ class Player:
         self.unshadowed = hemisphere_visibility(self.order, self.bundle.below_horizon)
         ch = self.character
         # the fused graph's order when it is the path played (the split graphs take the original order)
-        self.poser = Poser(ch, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone,
+        poser: type[Poser] = Poser
+        if graph == "compiled":
+            from prt_torch.player.compiled import CompiledPoser
+
+            poser = CompiledPoser
+        self.poser = poser(ch, self.bundle.cluster, self.bundle.cluster_axis, self.bundle.cluster_bone,
                            order=self.vertex_order if graph in CLUSTER_ORDER_MODES else None)
         self.center, self.radius = camera_target(ch.rest_vertices)
         self.camera_azimuth = CAMERA_AZIMUTH
@@ -379,6 +404,14 @@ class Player:
         """Radiance ``(B, V, 3)``: from the model (``visibility=None``) or a given ``(B, V, C)`` visibility.
         ``rpo``: shade with this RPO instead of the player's current BRDF (needs ``visibility``)."""
         check(rpo is None or visibility is not None, "Player.shade: rpo= needs the visibility")
+        if visibility is None and self.graph == "compiled":  # one compiled pass for all B characters
+            t0 = time.perf_counter()
+            o = self.vertex_order
+            out = self.compiled.radiance(state.features, state.in_order("frames", o), state.in_order("view_dirs", o),
+                                         self._lobe_dirs, self.lighting.coeffs, self.rpo)
+            if timer is not None:
+                timer.add("compiled", time.perf_counter() - t0)
+            return out
         if visibility is None and self.graph == "fused":  # one call for all B characters
             g = self.bundle.graphs["fused"]
             t0 = time.perf_counter()

@@ -130,10 +130,12 @@ class Poser:
         self.rest = np.ascontiguousarray(character.rest_vertices.T[:, sel], dtype=np.float32)  # (3, V)
         self.rest_n = np.ascontiguousarray(character.rest_normals.T[:, sel], dtype=np.float32)
         self.n_vertices = v
-        self._axes2 = np.stack([self.axes, self.fallback])  # (2, Kc, 3) float64
+        #: ``(2, Kc, 3)`` float64 rest-pose cluster axes and their fallback axes
+        self.axes2 = np.stack([self.axes, self.fallback])
         self._buffers: tuple[np.ndarray, np.ndarray] | None = None
 
-    def _checked_local(self, local: np.ndarray) -> np.ndarray:
+    def checked_local(self, local: np.ndarray) -> np.ndarray:
+        """``local`` as float64 ``(B, J, 4, 4)``, checked (shape, B >= 1, finite): one-line errors otherwise."""
         ch = self.character
         local = np.asarray(local, dtype=np.float64)
         check_shape(local, ("B", ch.num_joints, 4, 4), name="local joint transforms")
@@ -149,7 +151,7 @@ class Poser:
         from prt_torch.rig.features import pose_features
 
         ch = self.character
-        local = self._checked_local(local)
+        local = self.checked_local(local)
         return np.ascontiguousarray(pose_features(local, ch.bind_local, ch.parents), dtype=np.float32)
 
     def __call__(self, local: np.ndarray, eye: np.ndarray, features: np.ndarray | None = None) -> PoseBatch:
@@ -161,7 +163,7 @@ class Poser:
         from prt_torch.rig.skeleton import forward_kinematics
 
         ch = self.character
-        local = self._checked_local(local)
+        local = self.checked_local(local)
         b = local.shape[0]
         skin = forward_kinematics(ch.parents, local) @ ch.inverse_bind[None]  # (B, J, 4, 4) float64
         rows = skin[:, :, :3, :].reshape(b, -1, 12).transpose(0, 2, 1).astype(np.float32)  # (B, 12, J)
@@ -182,7 +184,7 @@ class Poser:
             mul(bm[:, :, j], self.rest_n[j], out=s3)
             add(nrm, s3, out=nrm)
         _normalize(nrm, s1, s3)
-        frames = vertex_frames_soa(nrm, skin[:, self.bones, :3, :3], self.labels, self._axes2, s1, s3)
+        frames = vertex_frames_soa(nrm, skin[:, self.bones, :3, :3], self.labels, self.axes2, s1, s3)
         view = np.subtract(np.asarray(eye, dtype=np.float32).reshape(1, 3, 1), pos)
         _normalize(view, s1, s3)
         if features is None:

@@ -43,7 +43,8 @@ class Renderer:
 
 
 def _build_onnx(args: argparse.Namespace, size: tuple[int, int]) -> Player:
-    """The run's learned models through onnxruntime (``--graph fused | split | overlap``)."""
+    """The run's learned models through onnxruntime (``--graph compiled | fused | split | overlap | fused_peaks``;
+    default: :func:`prt_torch.player.player.default_graph`)."""
     from prt_torch.player.player import Player
 
     if args.graph == "pipeline":

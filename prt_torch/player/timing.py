@@ -31,7 +31,8 @@ class FrameTimer:
     def add(self, name: str, seconds: float) -> None:
         self.steps[name].append(float(seconds))
 
-    def summary(self, compute_steps: tuple[str, ...] = ("pose", "visibility", "shading", "fused", "peaks", "colors"),
+    def summary(self, compute_steps: tuple[str, ...] = ("pose", "visibility", "shading", "fused", "compiled", "peaks",
+                                                   "colors"),
                 ) -> dict[str, Any]:
         """Median/mean ms per step, and frames/s of the compute path (``compute_steps``) and of all steps."""
         out: dict[str, Any] = {"steps_ms": {}}

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from prt_torch.export.graphs import SHADING_INPUTS, ShadingGraph, SHPolynomial, sh_polynomial
+from prt_torch.export.graphs import SHADING_INPUTS, ShadingGraph, SHPolynomial
 from prt_torch.export.onnx_file import export_onnx
 from prt_torch.export.parity import check_parity
 from prt_torch.sh.basis import band_of, sh_basis
+from prt_torch.sh.polynomial import sh_polynomial
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
