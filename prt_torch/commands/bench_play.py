@@ -4,8 +4,11 @@ On the exported run (default ``runs/demo``: built-in character ~11.7k vertices, 
 8-term RPO (``phong``), everything timed interleaved frame by frame, in ``--repeats`` blocks, medians reported
 (the machine is shared: only side-by-side ratios and medians mean anything):
 
-* the per-frame path (numpy FK + LBS + frames + features, then ONE fused ORT call) - ``fps``; and the split
-  graphs of the same frames for the per-step split (``visibility``, ``shading``);
+* the per-frame path the player plays by default - ``fps``, ``roofline_fraction``, ``steps.frame``: on the CPU
+  with an export that ships it, the compiled path (``posing_compiled``: FK + LBS + frames + features in two
+  compiled passes; ``compiled``: the latent graph + the decode + shade pass, :mod:`prt_torch.player.compiled`),
+  else the fused path; next to it the numpy posing + ONE fused ORT call (``posing``, ``fused``,
+  ``frame_fused``), and the split graphs of the same frames for the per-step split (``visibility``, ``shading``);
 * the visibility model at every weight precision (float32, float16, int8: exported from the run's model into a
   temporary directory), its bytes and time side by side;
 * the ROOFLINE: per step the bytes that must move (weights read once, inputs read once, outputs written once) and
@@ -50,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from prt_torch.commands.roofline import bound, copy_bandwidth, gemm_rate, step_costs
+from prt_torch.commands.roofline import bound, compiled_costs, copy_bandwidth, gemm_rate, step_costs
 
 HELP = ("Player frames/s against a roofline measured in the same run (per step bytes/FLOPs), precisions, crowds, "
         "speed-up vs Embree; --scaling plots cost vs vertex count and crowd size.")
@@ -151,6 +154,12 @@ def run(args: argparse.Namespace) -> int:
     run = RunDir(run_dir)
     kw = {"brdf": args.brdf, "threads": args.threads, "device": args.device}
     player = Player(run_dir, graph="fused", **kw)
+    # the default CPU path (the compiled pass) where the export ships it: the frame figures are its own
+    from prt_torch.player.compiled import has_compiled_path
+
+    comp = Player(run_dir, graph="compiled", **kw) if args.device == "cpu" and has_compiled_path(player.bundle) \
+        else None
+    default = comp if comp is not None else player
     split = Player(run_dir, graph="split", **kw)
     # the frames with peak lights: the same fused path plus the peaks' term (``None``: --peaks 0)
     with_peaks = None if peaks_arg == 0 else Player(run_dir, graph="fused", peaks=peaks_arg,
@@ -199,7 +208,8 @@ def run(args: argparse.Namespace) -> int:
                                                       "posing_onnx", "frame_posing_onnx", "frame_chained",
                                                       "frame_peaks", "frame_no_peaks", "peak_visibility",
                                                       "peak_shading", "frame_peaks_numba_threads",
-                                                      "frame_fused_peaks")}
+                                                      "frame_fused_peaks", "posing_compiled", "compiled",
+                                                      "frame_compiled")}
     posing_onnx = _posing_onnx(player, run, Path(tmp.name), args.threads, args.device)  # None without torch
     blocks: list[float] = []
     with console.status(f"timing {args.repeats} x {args.frames} frames on '{clip}' ..."):
@@ -208,6 +218,14 @@ def run(args: argparse.Namespace) -> int:
             for i in range(args.warmup + args.frames):
                 j = (rep * 37 + i) % n_clip
                 loc = locals_[j:j + 1]
+                pt: dict[str, float] = {}
+                if comp is not None:
+                    ta = time.perf_counter()
+                    cs = comp.pose(loc)
+                    tb = time.perf_counter()
+                    comp.shade(cs, checked=False)
+                    tc = time.perf_counter()
+                    pt.update({"posing_compiled": tb - ta, "compiled": tc - tb, "frame_compiled": tc - ta})
                 t0 = time.perf_counter()
                 state = player.pose(loc)
                 t1 = time.perf_counter()
@@ -219,7 +237,6 @@ def run(args: argparse.Namespace) -> int:
                 t4 = time.perf_counter()
                 split.shade(s2, visibility=vis, checked=False)
                 t5 = time.perf_counter()
-                pt = {}
                 if posing_onnx is not None:  # issue 14 item 3: the posing in ONNX, and chained with the fused graph
                     pg, cg, cfeeds = posing_onnx
                     loc32 = loc.astype(np.float32)
@@ -243,9 +260,9 @@ def run(args: argparse.Namespace) -> int:
                     times[k].append(v)
                 for p, v in pt.items():
                     times[p if p in times else f"visibility_{p}"].append(v)
-                block.append(t2 - t0)
+                block.append(pt["frame_compiled"] if comp is not None else t2 - t0)
             blocks.append(_median_ms(block))
-    frame_ms = _median_ms(times["frame"])
+    frame_ms = _median_ms(times["frame_compiled"] if comp is not None else times["frame"])
     fps = 1e3 / frame_ms
 
     # -- crowds: N characters per call of every graph, each crowd call next to a single-character frame ------
@@ -262,13 +279,13 @@ def run(args: argparse.Namespace) -> int:
                 for i in range(2 + n_iter):
                     loc = player.crowd_locals(crowd_clips[:n], rep * 11 + i, stagger=3)
                     t0 = time.perf_counter()
-                    state = player.pose(loc)
-                    player.shade(state, checked=False)
+                    state = default.pose(loc)
+                    default.shade(state, checked=False)
                     t1 = time.perf_counter()
-                    state = player.pose(loc[:1])
-                    player.shade(state, checked=False)
+                    state = default.pose(loc[:1])
+                    default.shade(state, checked=False)
                     t2 = time.perf_counter()
-                    if chunk and n > chunk:
+                    if chunk and n > chunk and comp is None:  # chunks: the fused graph's (one compiled pass is one)
                         player.crowd_chunk = chunk
                         state = player.pose(loc)
                         player.shade(state, checked=False)
@@ -276,7 +293,7 @@ def run(args: argparse.Namespace) -> int:
                     if i >= 2:
                         crowd_t[n].append(t1 - t0)
                         crowd_single[n].append(t2 - t1)
-                        if chunk and n > chunk:
+                        if chunk and n > chunk and comp is None:
                             crowd_chunked[n].append(time.perf_counter() - t2)
 
     # -- Embree ray tracing of the same frames + shading ------------------------------------------------
@@ -305,8 +322,21 @@ def run(args: argparse.Namespace) -> int:
     steps["frame"]["bound_ms"] = steps["posing"]["bound_ms"] + steps["fused"]["bound_ms"]
     steps["frame"]["fraction"] = steps["frame"]["bound_ms"] / steps["frame"]["ms"]
     roofline_fraction = steps["frame"]["fraction"]
+    if comp is not None:  # the default path: compiled posing + the compiled pass; its own bytes and FLOPs
+        ccost = _compiled_costs(comp, n_v, order, n_terms, n_lobes)
+        for name in ("posing_compiled", "compiled"):
+            b = bound(ccost[name], bw, gemm)
+            ms = _median_ms(times[name])
+            steps[name] = {"ms": ms, **b, "fraction": b["bound_ms"] / ms, **ccost[name]}
+        steps["frame_fused"] = steps.pop("frame")
+        fc = {k: ccost["posing_compiled"][k] + ccost["compiled"][k] for k in ("bytes", "flops")}
+        b_ms = steps["posing_compiled"]["bound_ms"] + steps["compiled"]["bound_ms"]
+        ms = _median_ms(times["frame_compiled"])
+        steps["frame"] = {"ms": ms, **bound(fc, bw, gemm), **fc, "bound_ms": b_ms, "fraction": b_ms / ms}
+        roofline_fraction = steps["frame"]["fraction"]
     if times["posing_onnx"]:  # same bytes / FLOPs as the numpy steps they replace
-        for name, like in (("posing_onnx", "posing"), ("frame_posing_onnx", "frame"), ("frame_chained", "frame")):
+        ff = "frame_fused" if "frame_fused" in steps else "frame"  # the numpy posing + fused frame they replace
+        for name, like in (("posing_onnx", "posing"), ("frame_posing_onnx", ff), ("frame_chained", ff)):
             ms = _median_ms(times[name])
             steps[name] = {**steps[like], "ms": ms, "fraction": steps[like]["bound_ms"] / ms}
 
@@ -333,8 +363,12 @@ def run(args: argparse.Namespace) -> int:
 
     crowd_rows = {}
     for n in crowds:
-        c = step_costs(n_v, order, n_terms, n_lobes, n_joints, model_bytes, macs, crowd=n)
-        b_ms = bound(c["posing"], bw, gemm)["bound_ms"] + bound(c["fused"], bw, gemm)["bound_ms"]
+        if comp is not None:
+            c = _compiled_costs(comp, n_v, order, n_terms, n_lobes, crowd=n)
+            b_ms = bound(c["posing_compiled"], bw, gemm)["bound_ms"] + bound(c["compiled"], bw, gemm)["bound_ms"]
+        else:
+            c = step_costs(n_v, order, n_terms, n_lobes, n_joints, model_bytes, macs, crowd=n)
+            b_ms = bound(c["posing"], bw, gemm)["bound_ms"] + bound(c["fused"], bw, gemm)["bound_ms"]
         ms = _median_ms(crowd_t[n])
         single = _median_ms(crowd_single[n])
         crowd_rows[str(n)] = {"call_ms": ms, "character_fps": n * 1e3 / ms, "bound_ms": b_ms,
@@ -345,7 +379,8 @@ def run(args: argparse.Namespace) -> int:
             crowd_rows[str(n)].update({"chunk": chunk, "chunked_call_ms": cm, "chunked_character_fps": n * 1e3 / cm})
 
     out: dict[str, Any] = {
-        "run": str(run_dir), "clip": clip, "n_vertices": n_v, "sh_order": order, "model_kind": meta["model_kind"],
+        "run": str(run_dir), "clip": clip, "path": default.graph, "n_vertices": n_v, "sh_order": order,
+        "model_kind": meta["model_kind"],
         "precision": player.bundle.precision, "vertex_order": meta.get("fused_vertex_order", "original"),
         "brdf": player.rpo.name, "brdf_terms": n_terms, "n_lobes": n_lobes, "threads": args.threads,
         "device": args.device, "frames": args.frames, "repeats": args.repeats,
@@ -366,7 +401,7 @@ def run(args: argparse.Namespace) -> int:
         out["scaling"]["plot"] = str(args.plot)
     player.close()
     split.close()
-    for p in (with_peaks, fused_peaks):
+    for p in (with_peaks, fused_peaks, comp):
         if p is not None:
             p.close()
     tmp.cleanup()
@@ -375,6 +410,19 @@ def run(args: argparse.Namespace) -> int:
         return 0
     _print_tables(out)
     return 0
+
+
+def _compiled_costs(comp: Any, n_v: int, order: int, n_terms: int, n_lobes: int,
+                    crowd: int = 1) -> dict[str, dict[str, float]]:
+    """The compiled path's bytes and FLOPs (:func:`prt_torch.commands.roofline.compiled_costs`) from the player's
+    own arrays: the poser's sparse weights, the decode's bases and the latent graph's weights."""
+    from prt_torch.export.onnx_file import initializer_bytes, weight_macs
+
+    cf, poser = comp.compiled, comp.poser
+    latent = cf.latent.path
+    return compiled_costs(n_v, order, n_terms, n_lobes, poser.bytes(), int(poser.weight.size),
+                          cf.bytes() + initializer_bytes(latent), weight_macs(latent) + cf.decode_macs(),
+                          int(cf.g_v.size), int(cf.sh_v.size), crowd=crowd)
 
 
 def _peak_frame(with_peaks: Any, without: Any, loc: np.ndarray, fused_peaks: Any = None) -> dict[str, float]:
@@ -627,7 +675,8 @@ def _print_tables(out: dict[str, Any]) -> None:
     for name, s in out["steps"].items():
         t.add_row(name, f"{s['ms']:.3f}", f"{s['bound_ms']:.3f}", f"{s['fraction']:.2f}", s["bound_by"],
                   f"{s['bytes'] / 1e6:.2f}", f"{s['flops'] / 1e6:.1f}")
-    t.add_row("fps (frame = posing + fused)", f"{out['fps']:.0f}", "", f"{out['roofline_fraction']:.2f}", "", "", "")
+    path = "posing_compiled + compiled" if out.get("path") == "compiled" else "posing + fused"
+    t.add_row(f"fps (frame = {path})", f"{out['fps']:.0f}", "", f"{out['roofline_fraction']:.2f}", "", "", "")
     for p, r in out["precisions"].items():
         t.add_row(f"visibility graph {p}", f"{r['ms']:.3f}", f"{r['bound_ms']:.3f}", f"{r['fraction']:.2f}",
                   r["bound_by"], f"{r['bytes_model'] / 1e6:.2f}", "")

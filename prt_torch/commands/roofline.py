@@ -86,3 +86,36 @@ def bound(cost: dict[str, float], bandwidth: float, gemm_flops: float) -> dict[s
     comp = cost["flops"] / gemm_flops
     return {"bound_ms": max(mem, comp) * 1e3, "memory_ms": mem * 1e3, "compute_ms": comp * 1e3,
             "bound_by": "memory" if mem >= comp else "compute"}
+
+
+def compiled_shading_flops(n_vertices: int, order: int, n_terms: int, n_lobes: int, gaunt_nnz: int,
+                           sh_nnz: int) -> float:
+    """FLOPs of the compiled pass's shading per frame (:mod:`prt_torch.player.frame_kernels`): per vertex the local
+    view and lobe directions (9 MACs each), their monomials (``P`` each), the view factors on the monomials (``k P``),
+    ``u_eff`` (``k C``), the RPO's product form (2 per Gaunt non-zero), per lobe the SH table (``sh_nnz``) and the
+    band-weighted RGB dot products (``3 C`` MACs)."""
+    c = order * order
+    p = order * (order + 1) * (order + 2) // 6
+    macs = 9 * (1 + n_lobes) + p * (1 + n_lobes) + n_terms * p + n_terms * c + 1.5 * gaunt_nnz \
+        + n_lobes * (sh_nnz + 3 * c)
+    return 2.0 * n_vertices * macs
+
+
+def compiled_costs(n_vertices: int, order: int, n_terms: int, n_lobes: int, pose_bytes: int, pose_nnz: int,
+                   model_bytes: int, model_macs: int, gaunt_nnz: int, sh_nnz: int,
+                   crowd: int = 1) -> dict[str, dict[str, float]]:
+    """Bytes and FLOPs of the compiled frame path's two steps for ``crowd`` characters:
+
+    * ``posing_compiled``: read the sparse skin weights, rest mesh and labels (``pose_bytes``, once per call), write
+      positions, normals, frames and view directions per character; FLOPs: the LBS blend (``12`` MACs per non-zero
+      weight) and ~60 per vertex for normals, frames and view directions;
+    * ``compiled``: the latent graph's and the decode's bytes once per call (``model_bytes``: bases, scales, mean),
+      frames and view directions in and radiance out per character; FLOPs: ``2 * model_macs`` (latent + decode) and
+      :func:`compiled_shading_flops` per character.
+    """
+    v, n = n_vertices, crowd
+    return {"posing_compiled": {"bytes": pose_bytes + n * v * 4 * 18,
+                                "flops": n * (2.0 * 12 * pose_nnz + 60.0 * v)},
+            "compiled": {"bytes": model_bytes + n * v * 4 * (9 + 3 + 3),
+                         "flops": n * (2.0 * model_macs
+                                       + compiled_shading_flops(v, order, n_terms, n_lobes, gaunt_nnz, sh_nnz))}}

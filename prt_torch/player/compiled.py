@@ -103,6 +103,10 @@ class CompiledFrame:
         """Bytes the decode reads per frame: the bases (int8 + scales, or float32) and the mean."""
         return int(self.q.nbytes + self.scales.nbytes + self.weights.nbytes + self.mean.nbytes)
 
+    def decode_macs(self) -> int:
+        """Multiply-adds of the decode per character: ``k_used * C * n_used`` summed over the clusters."""
+        return int((self.k_used * self.n_used).sum()) * self.order * self.order
+
     def rpo_tables(self, rpo: RPOTensors) -> tuple[np.ndarray, np.ndarray]:
         """``(wm (k, P), u (k, C))`` float32 of ``rpo``: its view factors on the monomials and its light factors,
         checked once against its ``M`` (``M_b = sum_k u_bk Gamma_{., ., k}``, one-line error otherwise)."""
@@ -205,6 +209,11 @@ class CompiledPoser(Poser):
         self.inverse_bind = np.ascontiguousarray(ch.inverse_bind, dtype=np.float64)
         self.bind_rot_t = np.ascontiguousarray(np.swapaxes(rotation_part(ch.bind_local), -1, -2))
         self.feature_joints = np.flatnonzero(self.parents >= 0).astype(np.int64)  # pose_features(exclude_root)
+
+    def bytes(self) -> int:
+        """Bytes the vertex pass reads per call: the sparse skin weights, the rest mesh and the labels."""
+        return int(self.indptr.nbytes + self.joint.nbytes + self.weight.nbytes + self.rest.nbytes + self.rest_n.nbytes
+                   + self.labels64.nbytes)
 
     def __call__(self, local: np.ndarray, eye: np.ndarray, features: np.ndarray | None = None) -> PoseBatch:
         local = self.checked_local(local)

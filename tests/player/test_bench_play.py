@@ -20,13 +20,17 @@ def test_bench_play_json_roofline(tiny_run: Path, capsys: pytest.CaptureFixture[
     for key in ("fps", "roofline_fraction", "steps", "batched_character_fps", "speedup_vs_raytrace", "bytes_model"):
         assert key in d
     bw, gemm = d["machine"]["copy_bandwidth_gb_s"] * 1e9, d["machine"]["gemm_gflop_s"] * 1e9
-    for name in ("posing", "visibility", "shading", "fused"):
+    assert d["path"] == "compiled"  # the player's default on the CPU: the frame figures are its own
+    for name in ("posing", "visibility", "shading", "fused", "posing_compiled", "compiled"):
         s = d["steps"][name]
         want = max(s["bytes"] / bw, s["flops"] / gemm) * 1e3
         assert s["bound_ms"] == pytest.approx(want, rel=1e-9) and s["ms"] > 0
         assert s["bound_by"] == ("memory" if s["bytes"] / bw >= s["flops"] / gemm else "compute")
     f = d["steps"]["frame"]
-    assert f["bound_ms"] == pytest.approx(d["steps"]["posing"]["bound_ms"] + d["steps"]["fused"]["bound_ms"])
+    assert f["bound_ms"] == pytest.approx(d["steps"]["posing_compiled"]["bound_ms"]
+                                          + d["steps"]["compiled"]["bound_ms"])
+    ff = d["steps"]["frame_fused"]  # the numpy posing + fused.onnx frame, side by side
+    assert ff["bound_ms"] == pytest.approx(d["steps"]["posing"]["bound_ms"] + d["steps"]["fused"]["bound_ms"])
     assert d["roofline_fraction"] == pytest.approx(f["bound_ms"] / f["ms"])
     assert d["fps"] == pytest.approx(1e3 / f["ms"])
     # the model's bytes: the int8 bases are smaller than float32's, and the shipped (int8) graph's match
