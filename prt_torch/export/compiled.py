@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch.errors import check
-from prt_torch.export.shippers import ExportRequest, Shipment, Shipper, ShipInputs
+from prt_torch.export.shippers import ExportRequest, ShipInputs, Shipment, Shipper
 from prt_torch.io import atomic_path
 
 #: ``decode.npz``'s layout version (part of the export key: a new layout re-exports)
