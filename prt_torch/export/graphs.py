@@ -22,8 +22,8 @@ Shading, per vertex, with local lighting ``l (C, 3)``, visibility ``v (C,)``, lo
 and the local lighting of ``K`` ZH lobes ``(s_K, g_K (n, 3))`` is ``l = sum_K g_K[band] * y(F s_K)``;
 ``L_c`` is computed as ``sum_{K, i} g_K[band i, c] zz_i y_i(F s_K)`` (one small GEMM).
 SH are evaluated as polynomials: a monomial table of the direction (built degree by degree with row
-gathers, :class:`SHPolynomial`) times a constant matrix (:func:`prt_torch.sh.polynomial.sh_polynomial`), one MatMul in the graph
-instead of a long chain of small ops.
+gathers, :class:`SHPolynomial`) times a constant matrix (:func:`prt_torch.sh.polynomial.sh_polynomial`), one MatMul
+in the graph instead of a long chain of small ops.
 """
 
 from __future__ import annotations
