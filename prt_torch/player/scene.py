@@ -6,12 +6,14 @@ Per frame (:meth:`ScenePlayer.compute`), for every character ``k`` (each through
     placed locals (prt_torch.scene.scene.Actor) --Player.pose--> positions, frames, view dirs, pose features
     Player.visibility(features) = learned self-visibility (B=1, V_k, C)
     FK -> skin -> blocker sphere centres (prt_torch.blockers.pose_spheres)
-    SHEXP (shexp.onnx, prt_torch.scene.occluders.ShexpGraph) of the OTHER characters' spheres at its vertices
+    SHEXP of the OTHER characters' spheres at its vertices: one compiled pass, culled per block of vertices
+        (prt_torch.scene.shexp_kernel.CompiledShexp, the numbers of the run's shexp.onnx, whose tables it reads)
     in-scene visibility = Composer.in_scene(self, frames, ground, others)   (prt_torch.scene.compose)
     radiance = Player.shade(state, visibility=in-scene)
 
-and for the ground: SHEXP of ALL spheres at the ground vertices (ground frame = world), shaded by the primary
-player's ``shade`` with the run's diffuse RPO (``lambert``) times the ground albedo: the same shading graph,
+and for the ground: SHEXP of ALL spheres at the ground vertices (ground frame = world; the same compiled pass: a
+block of floor vertices far from every character is the constant 1 at the cost of its distance tests), shaded by
+the primary player's ``shade`` with the run's diffuse RPO (``lambert``) times the ground albedo: the same shading graph,
 lighting and view directions, the ground's vertices packed into batches of the graph's vertex count.
 
 **Peak lights** (issue 27; ``peaks``, ``peak_kind`` as :class:`Player`'s): each Player's ``lighting`` is then the
@@ -49,8 +51,8 @@ from prt_torch.rundir import RunDir
 from prt_torch.scene.compose import Composer
 from prt_torch.scene.config import GroundConfig, SceneConfig, run_scene
 from prt_torch.scene.ground import Ground
-from prt_torch.scene.occluders import ShexpGraph
 from prt_torch.scene.scene import Actor, check_separated, placement_matrix, scene_ground, spheres_above
+from prt_torch.scene.shexp_kernel import CompiledShexp, ShexpTables
 
 #: the run's diffuse RPO, used for the ground
 GROUND_BRDF = "lambert"
@@ -203,12 +205,18 @@ class ScenePlayer:
         if self.scene.ground is not None:
             self.ground = scene_ground(self.scene.ground, self.actors, self.fps, self.n_frames)
         self.composers = [Composer(self.order, p.bundle.below_horizon) for p in self.actor_players]
-        self.shexp: ShexpGraph | None = None
+        #: the compiled SHEXP of each character's vertices (others' spheres) and of the floor's (everyone's)
+        self.shexp: list[CompiledShexp] = []
+        self.ground_shexp: CompiledShexp | None = None
         if len(self.actors) > 1 or self.ground is not None:
             gp = shexp_graph_path(self.primary.bundle.run)
             check(gp is not None, f"{self.run.path}: no shexp graph: run `prt export {self.run.path}` "
                                   "(cast shadows need it)")
-            self.shexp = ShexpGraph(gp, self.order, threads=threads)
+            tables = ShexpTables.from_graph(gp)
+            check(tables.order == self.order, f"{gp}: SHEXP order {tables.order}, the run's is {self.order}")
+            self.shexp = [CompiledShexp(tables, a.rest_vertices()) for a in self.actors]
+            if self.ground is not None:
+                self.ground_shexp = CompiledShexp(tables, self.ground.vertices)
         # the camera: around every placed rest mesh; every player looks from it
         rest = np.concatenate([a.rest_vertices() for a in self.actors]).astype(np.float32)
         self.center, self.radius = camera_target(rest)
@@ -256,7 +264,7 @@ class ScenePlayer:
             st = p.pose(local)
             states.append(st)
             selfvis.append(p.visibility(st.features, checked=False))
-            if self.shexp is not None:
+            if self.shexp:
                 centers.append(pose_spheres(a.spheres, st.skin))  # (1, S_k, 3), the Poser's skinning matrices
                 radii.append(np.asarray(a.spheres.radius, dtype=np.float32))
         if len(self.actors) > 1:
@@ -266,12 +274,15 @@ class ScenePlayer:
         vis, rad, pvis = [], [], []
         for k, (st, p) in enumerate(zip(states, self.actor_players, strict=True)):
             frames = st.frames_vx33()
-            others = None
+            others = rows = None
             if len(self.actors) > 1:
-                oc = np.concatenate([c for j, c in enumerate(centers) if j != k], axis=1)
-                orad = np.concatenate([r for j, r in enumerate(radii) if j != k])[None]
-                others = self.shexp(np.ascontiguousarray(st.positions.transpose(0, 2, 1)), frames, oc, orad)
-            v = self.composers[k].in_scene(selfvis[k], frames, ground=self.ground is not None, others=others)
+                oc = np.concatenate([c[0] for j, c in enumerate(centers) if j != k])
+                orad = np.concatenate([r for j, r in enumerate(radii) if j != k])
+                sx = self.shexp[k]
+                others = sx(st.positions_vx3(0), frames[0], oc, orad)[None]
+                rows = sx.occluded
+            v = self.composers[k].in_scene(selfvis[k], frames, ground=self.ground is not None, others=others,
+                                           others_rows=rows)
             vis.append(v)
             r = p.shade(st, visibility=v, checked=False)
             if self.n_peaks:
@@ -286,7 +297,8 @@ class ScenePlayer:
             allc = np.concatenate(centers, axis=1)
             allr = np.concatenate(radii)[None]
             allc, allr = spheres_above(allc, allr, g.height)
-            g_vis = self.shexp(g.vertices[None], g.frames((1,)), allc, allr)[0]
+            assert self.ground_shexp is not None
+            g_vis = self.ground_shexp(g.vertices, None, allc[0], allr[0])  # the ground frame is the world's
             g_rad = self.shade_ground(g_vis)
             if self.n_peaks:
                 g_pvis = self.floor_peak_visibility(occ)

@@ -63,17 +63,32 @@ def _peaks(directions: np.ndarray, angular_radii: np.ndarray) -> tuple[np.ndarra
 
 def inside_capsules(positions: np.ndarray, ends_a: np.ndarray, ends_b: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """``(G,)`` bool: points ``positions (G, 3)`` inside any capsule ``ends_a, ends_b (S, 3)``, ``radii (S,)``
-    (strictly: the distance to the segment ``< r``; a sphere: ``a == b``)."""
+    (strictly: the distance to the segment ``< r``; a sphere: ``a == b``). Only the points inside a capsule's
+    bounding box are tested against it (a floor under a crowd: the feet's few capsules, the vertices under them)."""
     p = np.asarray(positions, dtype=np.float64)
     a = np.asarray(ends_a, dtype=np.float64)
-    w = np.asarray(ends_b, dtype=np.float64) - a
-    if a.shape[0] == 0:
-        return np.zeros(p.shape[0], dtype=bool)
-    ww = (w * w).sum(-1)  # (S,)
-    d = p[:, None, :] - a[None]  # (G, S, 3)
-    t = np.clip((d * w[None]).sum(-1) / np.where(ww > 0, ww, 1.0), 0.0, 1.0)  # closest segment point
-    q = d - t[..., None] * w[None]
-    return ((q * q).sum(-1) < np.asarray(radii, dtype=np.float64) ** 2).any(-1)
+    b = np.asarray(ends_b, dtype=np.float64)
+    r = np.asarray(radii, dtype=np.float64)
+    out = np.zeros(p.shape[0], dtype=bool)
+    if a.shape[0] == 0 or p.shape[0] == 0:
+        return out
+    lo = np.minimum(a, b) - r[:, None]
+    hi = np.maximum(a, b) + r[:, None]
+    box = (p.min(0)[None] < hi).all(-1) & (p.max(0)[None] > lo).all(-1)  # (S,) capsules near any point at all
+    if not box.any():
+        return out
+    a, b, r, lo, hi = a[box], b[box], r[box], lo[box], hi[box]
+    near = ((p[:, None, :] > lo[None]) & (p[:, None, :] < hi[None])).all(-1)  # (G, S') in a capsule's box
+    gi, si = np.nonzero(near)
+    if gi.size == 0:
+        return out
+    w = b[si] - a[si]
+    ww = (w * w).sum(-1)
+    d = p[gi] - a[si]
+    t = np.clip((d * w).sum(-1) / np.where(ww > 0, ww, 1.0), 0.0, 1.0)  # closest segment point
+    q = d - t[:, None] * w
+    out[gi[(q * q).sum(-1) < r[si] ** 2]] = True
+    return out
 
 
 def floor_peak_visibility(vertices: np.ndarray, ends_a: np.ndarray, ends_b: np.ndarray, radii: np.ndarray,

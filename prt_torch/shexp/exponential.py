@@ -28,17 +28,11 @@ import numpy as np
 import torch
 
 from prt_torch.errors import PrtError
+from prt_torch.scene.shexp_kernel import HYB_THRESHOLD, MAX_SQUARINGS, OL_MAX
 from prt_torch.sh.basis import sh_basis
 from prt_torch.sh.quadrature import sphere_quadrature
-from prt_torch.shexp.tables import N_OL, OL_MAX, ol_table
+from prt_torch.shexp.tables import N_OL, ol_table
 
-HYB_THRESHOLD = 0.125
-"""HYB scales ``f^`` below this magnitude before OL. The OL error, amplified by each squaring, dominates HYB's
-error against the brute-force exponential: 0.5 -> 10-20 %, 0.125 -> 3-5 % on three strongly overlapping
-spheres (order 4)."""
-MAX_SQUARINGS = 10
-"""Upper bound on HYB's squaring steps (magnitudes up to ``HYB_THRESHOLD * 2**10 = 128``; the built-in
-character needs at most 7 with 32-64 spheres)."""
 METHODS = ("hyb", "ol")
 
 

@@ -43,6 +43,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from prt_torch.errors import PrtError
+from prt_torch.scene.shexp_kernel import OL_MAX
 from prt_torch.sh.basis import check_order, num_coeffs, sh_index
 from prt_torch.sh.product import dense_gaunt
 from prt_torch.sh.quadrature import sphere_directions
@@ -54,8 +55,9 @@ N_COS = 8192
 """Rows of the run-time log table (:func:`cos_log_table`), uniform in ``cos(alpha)`` on ``[0, 1]``."""
 N_OL = 256
 """Rows of the OL coefficient table."""
-OL_MAX = 64.0
-"""Largest tabulated magnitude ``||f^||`` of the OL table (clamped beyond)."""
+
+
+
 
 
 @contextlib.contextmanager

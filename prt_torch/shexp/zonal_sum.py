@@ -11,54 +11,18 @@ is ``f_lm = K_lm sum_s g_l(s) Q_lm(z_s) T_m(x_s, y_s)`` with the factors of :fun
 
 At order 4 that is ~45 elementwise operations and 16 reductions on ``(..., S)`` arrays per receiver
 instead of a ``(..., S, 16)`` basis and a ``(..., S, 16)`` product (tested against ``zh_to_sh(...).sum``).
-Torch (ONNX-exportable) only.
+Torch (ONNX-exportable); the factor tables (:func:`prt_torch.scene.shexp_kernel.monic_legendre`) are numpy, shared
+with the scene's compiled kernel generated from them.
 """
 
 from __future__ import annotations
 
-import functools
-import math
+from typing import TYPE_CHECKING
 
-import numpy as np
-import torch
+from prt_torch.scene.shexp_kernel import lobe_pairs, monic_legendre
 
-from prt_torch.sh.basis import check_order, norm_consts
-
-
-@functools.cache
-def _monic_legendre(order: int) -> tuple[tuple[tuple[float, ...], ...], np.ndarray]:
-    """``(qhat, scale)``: ``qhat[i]`` the monic polynomial coefficients (lowest power first) of ``Q_lm`` for the
-    ``(l, m >= 0)`` pairs in :func:`_pairs` order; ``scale (C,)`` float64 ``K_lm * lead_lm`` per SH index."""
-    check_order(order, 16)
-    k = norm_consts(order)
-    qhat: list[tuple[float, ...]] = []
-    scale = np.zeros(order * order)
-    for l, m in _pairs(order):
-        q = _legendre_q(l, m)
-        lead = q[-1]
-        qhat.append(tuple(float(c) for c in q / lead))
-        scale[l * (l + 1) + m] = k[l][m] * lead
-        scale[l * (l + 1) - m] = k[l][m] * lead
-    return tuple(qhat), scale
-
-
-def _pairs(order: int) -> list[tuple[int, int]]:
-    return [(l, m) for m in range(order) for l in range(m, order)]
-
-
-@functools.cache
-def _legendre_q(l: int, m: int) -> np.ndarray:
-    """Coefficients (lowest power first, float64) of ``Q_lm(z)``: ``P_l^m = sin^m Q_lm``, no Condon-Shortley
-    phase; the recurrence of :func:`prt_torch.sh.basis.sh_basis`."""
-    poly = np.polynomial.Polynomial
-    zed = poly([0.0, 1.0])
-    qmm = poly([float(math.prod(range(1, 2 * m, 2))) if m > 0 else 1.0])
-    if l == m:
-        return qmm.coef
-    prev2, prev = qmm, zed * (2 * m + 1) * qmm
-    for ll in range(m + 2, l + 1):
-        prev2, prev = prev, ((2 * ll - 1) * zed * prev - (ll + m - 1) * prev2) / (ll - m)
-    return prev.coef
+if TYPE_CHECKING:
+    import torch
 
 
 def zonal_sum(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, g: list[torch.Tensor], order: int) -> torch.Tensor:
@@ -72,14 +36,16 @@ def zonal_sum(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, g: list[torch.T
     Returns:
         ``(..., n*n)`` SH coefficients (flat index ``l (l+1) + m``), dtype of ``x``.
     """
-    qhat, scale = _monic_legendre(order)
+    import torch  # here: the module's tables serve the torch-free compiled kernel (prt_torch.scene.shexp_kernel)
+
+    qhat, scale = monic_legendre(order)
     zp = [None, z]  # powers of z, built on demand
     c, s = [None, x], [None, y]  # Re, Im (x + i y)^m
     for _m in range(2, order):
         c.append(c[-1] * x - s[-1] * y)
         s.append(s[-1] * x + c[-2] * y)
     cols: list[torch.Tensor | None] = [None] * (order * order)
-    for (l, m), q in zip(_pairs(order), qhat, strict=True):
+    for (l, m), q in zip(lobe_pairs(order), qhat, strict=True):
         w = g[l]
         if len(q) > 1:  # Qhat = z^d + sum_j q_j z^j (j of d's parity): weight it term by term
             while len(zp) < len(q):
