@@ -184,8 +184,9 @@ def test_kill_export_at_every_write(tiny_run: Path, tmp_path: Path, capsys: pyte
         return k, tmp_path, ["export", str(run), *args]
 
     # the lock holder's file, stages.json (key dropped), frames, the RPO cache entry (each job starts with an empty
-    # cache), 1 RPO, 3 graphs, blockers, shexp graph, export.json, stages.json: the same sequence in every job
-    n = 12
+    # cache), 1 RPO, 3 graphs, the compiled path's latent graph and decode arrays, blockers, shexp graph,
+    # export.json, stages.json: the same sequence in every job
+    n = 14
     results = _run_all([job(k) for k in range(n + 1)])
     ref = results.pop(0)
     assert ref[0] == 0, ref[1][-2000:]
