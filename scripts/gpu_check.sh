@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
-# GPU check of the run-time path (issue 14): onnxruntime's CUDA execution provider vs the CPU, and
-# `prt bench play --device cuda` for crowds of 1, 8, 32, 128. Prints the figures; ~2-4 minutes on a warm GPU.
+# GPU check of the run-time path: onnxruntime's CUDA execution provider vs the CPU's default (compiled) path,
+# `prt bench play --device cuda` for crowds of 1, 8, 32, 128, and the CPU compiled path and the scene on the device
+# machine's 16 cores (`prt bench play`, `prt bench scene --characters 1/4/8`). Prints the figures; ~3-5 minutes on a
+# warm GPU.
 #
-# 1. HERE (no GPU needed), once: a slim player-only copy of an exported run (~17 MB at int8, fits the device
-#    tool's 64 MiB carry; no dataset, no model file) and, if the device image lacks it, the onnxruntime-gpu wheel
+# 1. HERE (no GPU needed), once: a player-only copy of an exported run (every file its export.json records, ~31 MB
+#    for the demo at int8, fits the device tool's 64 MiB carry; no dataset, no model file) and, if the device image lacks it, the onnxruntime-gpu wheel
 #    (the device machine has no network):
 #        scripts/gpu_check.sh --prepare runs/demo runs/gpu_demo
 #        pip download onnxruntime-gpu --no-deps -d .whl      # optional: /.whl/ is git-ignored; carry it
@@ -18,10 +20,11 @@ cd "$(dirname "$0")/.."
 if [ "${1:-}" = "--prepare" ]; then
     src="${2:?source run}"; dst="${3:?destination}"
     mkdir -p "$dst/rpo"
-    for f in export.json character.npz frames.npz visibility.onnx shading.onnx fused.onnx stages.json; do
-        cp "$src/$f" "$dst/$f"
+    files=$(python3 -c "import json, sys; print(' '.join(json.load(open(sys.argv[1]))['file_sha256']))" \
+        "$src/export.json") || exit 1
+    for f in export.json character.npz stages.json $files; do
+        cp "$src/$f" "$dst/$f" || exit 1
     done
-    cp "$src"/rpo/*.npz "$dst/rpo/"
     du -sh "$dst"
     exit 0
 fi
@@ -47,13 +50,14 @@ $py -m pip install -q -e . --no-deps >/dev/null 2>&1 || true
 echo "== CUDA parity tests"
 $py -m pytest -q tests/runtime -p no:cacheprovider -k "cuda or devices" 2>&1 | tail -3
 
-echo "== player parity on $run: CPU vs CUDA, every graph mode"
+echo "== player parity on $run: CUDA (fused, split) vs the CPU's default path (compiled)"
 $py - "$run" <<'EOF'
 import sys, numpy as np
 from prt_torch.player import Player
 run = sys.argv[1]
+cpu = Player(run, brdf="phong")
+print("CPU graph:", cpu.graph)
 for graph in ("fused", "split"):
-    cpu = Player(run, brdf="phong", graph=graph)
     gpu = Player(run, brdf="phong", graph=graph, device="cuda")
     loc = cpu.crowd_locals(list(cpu.character.clips)[:4] * 2, frame=3, stagger=5)
     want, got = cpu.compute(loc)[1], gpu.compute(loc)[1]
@@ -75,3 +79,16 @@ for k, s in d["steps"].items():
 for n, r in d["crowd"].items():
     print(f"crowd {n:>4}: {r['character_fps']:.0f} character-frames/s ({r['call_ms']:.2f} ms per call)")
 EOF
+
+echo "== the CPU compiled path on this machine's cores: prt bench play, prt bench scene --characters K"
+$py -m prt_torch bench play "$run" --precisions "" --raytrace-frames 0 --frames 200 --repeats 3 --json \
+    > /tmp/cpu_bench.json && $py - <<'EOF'
+import json
+d = json.load(open("/tmp/cpu_bench.json"))
+print(f"CPU {d['threads']} threads, path {d['path']}: {d['fps']:.0f} frames/s, roofline fraction "
+      f"{d['roofline_fraction']:.2f}; batch {d['batch']}: {d['batched_character_fps']:.0f} character-frames/s")
+EOF
+for k in 1 4 8; do
+    $py -m prt_torch bench scene "$run" --characters "$k" --frames 10 --json 2>/dev/null | tail -1
+done
+
