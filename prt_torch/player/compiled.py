@@ -4,7 +4,7 @@ Per frame, for ``B`` characters of one run (:class:`CompiledFrame`)::
 
     pose features (B, A) --ORT latent.onnx--> z (B, G, K)            the model up to its output bases (~40 kB)
     z --quantize_latent--> int8 latent per block (as MatMulNBits)    tiny, serial
-    decode_shade_pass: per tile of <= 64 vertices of one cluster     numba threads over tiles
+    decode_shade_pass: per tile of <= TILE vertices of one cluster   numba threads over tiles
         visibility (C, T) = basis_g^T z_g + mean                     each basis column read once for all B
         radiance (B, T, 3) = RPO shading under the ZH lobes          while the tile is in cache
     -> radiance (B, V, 3) in the ORIGINAL vertex order               the only array written
@@ -12,7 +12,7 @@ Per frame, for ``B`` characters of one run (:class:`CompiledFrame`)::
 with the posing in one compiled pass too (:class:`CompiledPoser`: LBS from the non-zero skin weights, vertex frames,
 view directions). The ONNX graphs stay the shipped contract: this path equals ``fused.onnx`` within the export's
 parity tolerance (``tests/player/test_compiled.py``), and it is the player's default on the CPU
-(:data:`prt_torch.player.player.DEFAULT_GRAPH`). Data: ``latent.onnx`` and ``decode.npz``
+(:func:`prt_torch.player.player.default_graph`). Data: ``latent.onnx`` and ``decode.npz``
 (:mod:`prt_torch.export.compiled`); numpy + numba + onnxruntime, no torch.
 """
 
