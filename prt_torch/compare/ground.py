@@ -8,8 +8,8 @@ frame index), other characters their own clips at the same scene time, all place
 
 * **truth**: Embree over ground + every posed character (:class:`prt_torch.scene.truth.SceneTracer`, the
   bake's ``trace_frame``, ray count, offset and seed), for the ground vertices and each character's vertices;
-* **ground**: SHEXP of all characters' posed blocker spheres (the run's ``shexp.onnx``,
-  :class:`prt_torch.scene.occluders.ShexpGraph`) at the ground vertices;
+* **ground**: SHEXP of all characters' posed blocker spheres at the ground vertices (the scene player's compiled,
+  culled pass, :class:`prt_torch.scene.shexp_kernel.CompiledShexp`, with the tables of the run's ``shexp.onnx``);
 * **each character**: ``self_only`` = its learned self-visibility (its run's ``visibility.onnx``), and
   ``in_scene`` = that composed with the ground half-space and the other characters' SHEXP
   (:class:`prt_torch.scene.compose.Composer`, the player's rule).
@@ -54,7 +54,6 @@ from prt_torch.errors import PrtError, check
 from prt_torch.rundir import RunDir
 from prt_torch.scene.compose import Composer
 from prt_torch.scene.config import SceneConfig, run_scene
-from prt_torch.scene.occluders import ShexpGraph
 from prt_torch.scene.scene import (
     Actor,
     check_separated,
@@ -63,6 +62,7 @@ from prt_torch.scene.scene import (
     scene_ground,
     spheres_above,
 )
+from prt_torch.scene.shexp_kernel import CompiledShexp, ShexpTables
 from prt_torch.scene.truth import GROUND_BELOW_HORIZON, GROUND_TRUTH_RAYS, SceneTracer
 from prt_torch.scoring.images import Camera, ImageRenderer
 from prt_torch.scoring.rpos import DIFFUSE
@@ -144,7 +144,9 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
     actors, bundles = _actors(ctx, scene, fs.sources[0], fps, threads)  # the character clip the frames are cut from
     n_f = fs.n_frames
     ground = scene_ground(scene.ground, actors, fps, int(max(fs.frame_index) + 1)) if scene.ground else None
-    shexp = ShexpGraph(gp, ctx.order, threads=threads)
+    tables = ShexpTables.from_graph(gp)  # the scene player's pass: what ships is what is scored
+    check(tables.order == ctx.order, f"{gp}: SHEXP order {tables.order}, the run's is {ctx.order}")
+    shexp = [CompiledShexp(tables, a.rest_vertices()) for a in actors]
     composers = [Composer(ctx.order, b.below_horizon) for b in bundles]
     bake = ctx.bake
     tracer = SceneTracer(ctx.order, int(bake["n_rays"]), float(bake["ray_offset_world"]), int(bake.get("seed", 0)))
@@ -159,6 +161,7 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
     selfv: list[list[np.ndarray]] = [[] for _ in actors]
     posed_c: list[list[Any]] = [[] for _ in actors]
     g_truth, g_shexp = [], []
+    g_shexp_pass = CompiledShexp(tables, ground.vertices) if ground is not None else None
     secs = []
     fp = FloorPeaks.of(lights, bundles, ctx.bake) if ground is not None else None
     g_meshes: list[list[tuple[np.ndarray, np.ndarray]]] = []
@@ -191,11 +194,11 @@ def compare_scene(ctx: Any, fs: Any, lighting: Any, rpos: dict[str, Any], scene:
             if k_n > 1:
                 oc = np.concatenate([c for j, c in enumerate(centers) if j != k], axis=1)
                 orad = np.concatenate([r for j, r in enumerate(radii) if j != k])[None]
-                others = shexp(posed[k].positions, posed[k].frames, oc, orad)
+                others = shexp[k](posed[k].positions[0], posed[k].frames[0], oc[0], orad[0])[None]
             out.append(composers[k].in_scene(sv[k], posed[k].frames, ground=ground is not None, others=others))
         if ground is not None:
             gc, gr = spheres_above(np.concatenate(centers, axis=1), np.concatenate(radii)[None], ground.height)
-            gv = shexp(ground.vertices[None], ground.frames((1,)), gc, gr)[0]
+            gv = g_shexp_pass(ground.vertices, None, gc[0], gr[0])  # the ground frame is the world's
         secs.append(time.perf_counter() - t0)
         # -- the truth
         meshes = ([(ground.vertices, ground.faces)] if ground is not None else []) + \
