@@ -19,6 +19,7 @@ BENCHES: dict[str, str] = {
     "shade": "prt_torch.commands.bench_shade",
     "heightfield": "prt_torch.heightfield.bench",
     "scene": "prt_torch.commands.bench_scene",
+    "web": "prt_torch.commands.bench_web",
     "sglight": "prt_torch.commands.bench_sglight",
     "sg": "prt_torch.vct.bench",
     "shexp": "prt_torch.shexp.bench",

@@ -9,7 +9,12 @@ Site layout (every file written atomically)::
                                                  the offset / dtype / shape of every array in data.bin, and the
                                                  size and sha256 of data.bin and of the model (the page checks both)
     DIR/assets/data.bin                          little-endian arrays (8-byte aligned), see SITE_ARRAYS
-    DIR/assets/pose_to_visibility.onnx           the run's visibility graph, byte for byte
+    DIR/assets/pose_to_visibility.onnx           the run's visibility graph, byte for byte (the page's decode when
+                                                 the export has no compiled path; else loaded only on demand by
+                                                 ``window.prt.visibility``, the tests' and ``--check``'s comparison)
+    DIR/assets/latent.onnx                       the run's latent graph ``pose (B, A) -> z (B, G, K)``, byte for
+                                                 byte, when the export ships the compiled frame path
+                                                 (:mod:`prt_torch.export.compiled`); the page decodes on the GPU
     DIR/assets/peak_visibility.onnx              the peak lights' visibility graph (:func:`write_peak_graph`: the
                                                  run's learned one, else its blocker spheres'), when a lighting has
                                                  peaks
@@ -19,7 +24,8 @@ The arrays are what :class:`prt_torch.player.posing.Poser` and the shading graph
 skin weights, bind / inverse-bind transforms (float64, as the numpy FK uses them), cluster labels / axes /
 bones (vertex frames), every clip's local joint transforms (float32, rows 0..2 of each 4x4: ``(F, J, 12)``),
 the RPO catalogue (``M (k, C, C)``, ``w (k, C)`` zero-padded to the graph's ``k``), the material's per-vertex
-base colour and UVs. Lighting presets are the player's own (:func:`prt_torch.scoring.lighting.shipping_lights`:
+base colour and UVs; with ``latent.onnx``, the GPU decode's per-vertex bases (:func:`decode_texture`, manifest key
+``decode``). Lighting presets are the player's own (:func:`prt_torch.scoring.lighting.shipping_lights`:
 the procedural sky and the env maps of the shared data, 3 ZH lobes each) plus any ``--env`` files.
 """
 
@@ -47,6 +53,7 @@ ASSETS = "assets"
 MANIFEST = "manifest.json"
 DATA = "data.bin"
 MODEL = "pose_to_visibility.onnx"
+LATENT_MODEL = "latent.onnx"
 PEAKS_MODEL = "peak_visibility.onnx"
 TEXTURE = "basecolor.png"
 
@@ -160,6 +167,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         the manifest (also written to ``out/assets/manifest.json``).
     """
     from prt_torch.player.bundle import RunBundle
+    from prt_torch.player.compiled import has_compiled_path
     from prt_torch.player.lighting import hemisphere_visibility
     from prt_torch.player.material import vertex_base_color
     from prt_torch.player.player import CAMERA_AZIMUTH, CAMERA_DISTANCE, CAMERA_ELEVATION, camera_target
@@ -246,6 +254,19 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
                        "inputs": ["positions", "normals", "skin", "directions", "angular_radii"],
                        "output": "peak_visibility", "bytes": len(peak_bytes),
                        "sha256": hashlib.sha256(peak_bytes).hexdigest()}
+    decode = None
+    if has_compiled_path(bundle):
+        basis, rows, groups = decode_texture(bundle)
+        blob.add("decode_basis", basis, "float16")
+        blob.add("decode_rows", rows, "float32")
+        latent_bytes = bundle.run.latent_graph_path.read_bytes()
+        atomic_write_bytes(out / ASSETS / LATENT_MODEL, latent_bytes)
+        decode = {"file": LATENT_MODEL, "input": "pose", "output": "latent", "bytes": len(latent_bytes),
+                  "sha256": hashlib.sha256(latent_bytes).hexdigest(), "basis": "decode_basis", "rows": "decode_rows",
+                  "basis_dtype": "float16", "k_max": int(basis.shape[1] // (4 * _texels(c)) - 1),
+                  "texels": int(basis.shape[1] // 4), "groups": groups}
+    else:
+        (out / ASSETS / LATENT_MODEL).unlink(missing_ok=True)
     data = blob.bytes()
     atomic_write_bytes(out / ASSETS / DATA, data)
     model_bytes = bundle.run.graph_path("visibility").read_bytes()
@@ -278,6 +299,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
                     "peaks": _with_tonemap(peaks_entry(peak_lights[n]), tonemaps[n].get("peaks"))}
                    for n, lt in lights.items()],
         "peaks_model": peaks_model,
+        "decode": decode,
         "max_peaks": MAX_PAGE_PEAKS,
         "camera": {"center": center.astype(float).tolist(), "radius": radius, "azimuth": CAMERA_AZIMUTH,
                    "elevation": CAMERA_ELEVATION, "distance": CAMERA_DISTANCE, "view_angle": 30.0,
@@ -290,6 +312,67 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
     atomic_write_json(out / ASSETS / MANIFEST, manifest)
     _copy_page(root, out, vendor)
     return manifest
+
+
+def _texels(n_coeffs: int) -> int:
+    """RGBA texels holding ``n_coeffs`` floats (4 per texel, zero padded)."""
+    return -(-n_coeffs // 4)
+
+
+def decode_texture(bundle: Any) -> tuple[np.ndarray, np.ndarray, list[dict[str, int]]]:
+    """The page's GPU decode data from the run's ``decode.npz`` (:mod:`prt_torch.export.compiled`), per vertex in
+    the ORIGINAL vertex order:
+
+    * ``basis (V, 4 T (K + 1))`` float16, ``T = ceil(C / 4)`` texels per C-vector, ``K`` the largest ``k_used``:
+      texels ``0 .. T-1`` the mean ``(C,)``, texels ``(k + 1) T .. (k + 2) T - 1`` basis row ``k`` of the vertex's
+      cluster (its ``C`` coefficients, zero padded to ``4 T``; rows ``>= k_used`` zero). int8 bases dequantized
+      (``q * scale`` of the row's block, the products ``MatMulNBits`` forms), float ones as stored. Row-major, the
+      vertices' texels back to back: the page's texel layout (``shading.js`` ``texelLayout``) puts texel ``p`` of
+      vertex ``v`` at flat texel ``v P + p`` of its texture, so this array is the texture's data as it is.
+    * ``rows (V, 2)`` float32: the vertex's cluster (its index in ``groups``) and the cluster's ``k_used``.
+    * ``groups``: ``[{"row", "k_used", "block"}]`` per cluster with vertices: ``row`` its row of ``z`` (``z[:, row,
+      :]``, ``decode.npz``'s ``clusters``); the page rounds ``z`` per block of ``block`` entries as
+      the CPU path does (:func:`prt_torch.player.frame_kernels.quantize_latent`; ``block`` 0: float bases, ``z`` as
+      is), so that its products equal the CPU's within float rounding.
+
+    Float16 (10-bit mantissa, relative rounding <= 2^-11) halves the bytes a vertex fetches and the site's size; an
+    int8 basis entry ``q s`` is already rounded to ``s / 2 <= |block max| / 254``, 8x coarser than float16's rounding
+    of the largest entry, and the int8 export's mean is float16 already. A float entry beyond float16's range is an
+    error (not seen: visibility SH coefficients are O(1))."""
+    with np.load(bundle.run.decode_path, allow_pickle=False) as z:
+        d = {k: z[k] for k in z.files}
+    c = int(d["n_coeffs"])
+    v = int(d["n_used"].sum())
+    check(d["mean"].shape == (c, v) and v == bundle.n_vertices and bundle.vertex_order is not None,
+          f"{bundle.run.decode_path}: does not match the run ({bundle.n_vertices} vertices): run "
+          f"`prt export {bundle.run.path} --force`")
+    t = _texels(c)
+    k_max = int(d["k_used"].max(initial=0))
+    out = np.zeros((v, k_max + 1, 4 * t), np.float32)  # cluster-sorted positions first
+    out[:, 0, :c] = d["mean"].T
+    int8 = "q" in d
+    groups = []
+    rows = np.zeros((v, 2), np.float32)
+    for g in range(len(d["n_used"])):  # clusters (tens), each vectorised over its vertices
+        n, kg, blk, s0 = int(d["n_used"][g]), int(d["k_used"][g]), int(d["blocks"][g]), int(d["starts"][g])
+        if int8 and blk:
+            nb = -(-kg // blk)
+            q = d["q"][d["q_offsets"][g]:d["q_offsets"][g] + c * n * nb * blk].reshape(c * n, nb * blk)
+            s = d["scales"][d["scale_offsets"][g]:d["scale_offsets"][g] + c * n * nb].reshape(c * n, nb)
+            w = (q[:, :kg].astype(np.float32) * np.repeat(s, blk, axis=1)[:, :kg]).reshape(c, n, kg)
+        else:
+            w = d["weights"][d["q_offsets"][g]:d["q_offsets"][g] + kg * c * n].reshape(kg, c, n).transpose(1, 2, 0)
+            blk = 0
+        out[s0:s0 + n, 1:kg + 1, :c] = w.transpose(1, 2, 0)
+        rows[s0:s0 + n] = (len(groups), kg)
+        groups.append({"row": int(d["clusters"][g]), "k_used": kg, "block": blk})
+    basis = np.empty_like(out)
+    basis[bundle.vertex_order] = out  # position i holds original vertex vertex_order[i]
+    by_vertex = np.empty_like(rows)
+    by_vertex[bundle.vertex_order] = rows
+    half = basis.astype(np.float16)
+    check(bool(np.isfinite(half).all()), f"{bundle.run.decode_path}: a basis entry exceeds float16's range")
+    return half.reshape(v, -1), by_vertex, groups
 
 
 def gaunt_table(order: int) -> dict[str, list[Any]]:

@@ -1,15 +1,23 @@
-// The browser player: assets -> posing (posing.js) -> onnxruntime-web visibility (and, for a lighting with peak
-// lights, the run's peaks.onnx: each peak's visible fraction per vertex) -> RPO shading of the (residual) lighting
-// plus the peaks' analytic term (prt_shading.glsl). A site without peaks.onnx shades its peaks unshadowed (V = 1:
+// The browser player: assets -> posing (posing.js) -> onnxruntime-web: the run's latent graph (pose -> z per cluster;
+// the GPU decode, below) or, for an export without one, the whole visibility graph (and, for a lighting with peak
+// lights, the run's peaks.onnx: each peak's visible fraction per vertex) -> upload -> the vertex shader decodes the
+// visibility from the static basis texture and z (GPU decode) and shades: RPO shading of the (residual) lighting
+// plus the peaks' analytic term (prt_shading.glsl). Per frame the page uploads positions, frames (and peak
+// visibility) per vertex and z (a few hundred floats per character), not the visibility.
+// ?characters=K (1..64): K instances of the character in one draw on a grid, each with its own pose (clip c % #clips,
+// 3 c frames later), the latent graph run once with batch K; ?texwidth=W forces the texture width (shading.js). A site without peaks.onnx shades its peaks unshadowed (V = 1:
 // only the BRDF's horizon). window.prt is the page's scripting interface (used by `prt web --check` and tests/web).
 import * as THREE from 'three';
 import * as ort from 'onnxruntime-web';
 import { Poser } from './posing.js';
-import { MAX_PEAKS, PEAK_TEXEL, RADIANCE_WIDTH, VIS_TEXEL, makeMaterial, rpoTexture, stateLayout } from './shading.js';
+import { MAX_PEAKS, PEAK_TEXEL, RADIANCE_WIDTH, TEXTURE_WIDTH, VIS_TEXEL, itemTexture, makeMaterial, rpoTexture, stateLayout,
+  texelLayout } from './shading.js';
 
 const $ = (id) => document.getElementById(id);
 const ASSETS = 'assets/';
-const DTYPES = { float32: Float32Array, float64: Float64Array, uint32: Uint32Array, int32: Int32Array, uint8: Uint8Array };
+const DTYPES = { float32: Float32Array, float64: Float64Array, uint32: Uint32Array, int32: Int32Array, uint8: Uint8Array,
+  float16: Uint16Array }; // float16: the raw bits, uploaded as HALF_FLOAT
+const MAX_CHARACTERS = 64;
 
 class AssetError extends Error {}
 
@@ -113,33 +121,68 @@ async function loadTexture(name) {
   return tex;
 }
 
-function cameraEye(cam, azimuth, elevation) {
-  // prt_torch.player.player.camera_eye: orbit the centre at distance * radius, in front (-y) at azimuth 0
+function cameraEye(cam, azimuth, elevation, scale = 1) {
+  // prt_torch.player.player.camera_eye: orbit the centre at distance * radius, in front (-y) at azimuth 0 (scale: a
+  // crowd's grid, the camera pulled back)
   const d = [Math.sin(azimuth) * Math.cos(elevation), -Math.cos(azimuth) * Math.cos(elevation), Math.sin(elevation)];
-  const r = cam.distance * cam.radius;
+  const r = cam.distance * cam.radius * scale;
   return [cam.center[0] + r * d[0], cam.center[1] + r * d[1], cam.center[2] + r * d[2]];
 }
 
+// round z as the CPU path does (prt_torch.player.frame_kernels.quantize_latent: onnxruntime's int8 MatMulNBits input
+// rounding): per block of `block` entries, s = max |z| / 127 (float32), z -> rint_even(z / s) * s; block 0: z as is.
+// z (nChars, Gz, Kz) flat -> out: row c * G + g (g: the site's clusters), tz texels (4 tz floats) per row
+function roundHalfEven(x) {
+  const r = Math.round(x);
+  return (Math.abs(x % 1) === 0.5 && r % 2 !== 0) ? r - 1 : r;
+}
+function quantizeLatent(z, zDims, groups, out, tz, nChars) {
+  const gz = zDims[1], kz = zDims[2], f = Math.fround, ng = groups.length;
+  for (let c = 0; c < nChars; c++) {
+    for (let g = 0; g < ng; g++) {
+      const { row, k_used: ku, block } = groups[g];
+      const src = (c * gz + row) * kz, dst = (c * ng + g) * tz * 4;
+      if (!block) { for (let k = 0; k < ku; k++) out[dst + k] = z[src + k]; continue; }
+      for (let b0 = 0; b0 < ku; b0 += block) {
+        const b1 = Math.min(ku, b0 + block);
+        let amax = 0;
+        for (let k = b0; k < b1; k++) amax = Math.max(amax, Math.abs(z[src + k]));
+        const sc = f(amax / 127);
+        for (let k = b0; k < b1; k++) out[dst + k] = sc > 0 ? f(roundHalfEven(f(z[src + k] / sc)) * sc) : 0;
+      }
+    }
+  }
+  return out;
+}
+
 class App {
-  constructor(m, arrays, session, glsl, texture, peakSession) {
+  constructor(m, arrays, session, glsl, texture, peakSession, latentSession, options = {}) {
     this.m = m;
     this.a = arrays;
-    this.session = session;
+    this.session = session; // the visibility graph (GPU decode: loaded on demand, window.prt.visibility)
+    this.latentSession = latentSession; // the latent graph (null: no GPU decode, the visibility graph per frame)
+    this.decode = latentSession ? m.decode : null;
     this.peakSession = peakSession; // the run's peaks.onnx (null: peaks unshadowed)
     const V = m.n_vertices, nc = m.order * m.order;
     this.V = V;
     this.nc = nc;
+    const nChars = options.characters || 1;
+    need(Number.isInteger(nChars) && nChars >= 1 && nChars <= MAX_CHARACTERS, `characters must be 1..${MAX_CHARACTERS}, not ${options.characters}`);
+    this.nChars = nChars;
+    this.texWidth = options.texWidth || TEXTURE_WIDTH;
     const K = arrays.skin_weights.length / V;
     this.poser = new Poser(m.parents, arrays, K);
     need(this.poser.nFeatures === m.n_features, `the skeleton gives ${this.poser.nFeatures} pose features, the model takes ${m.n_features}`);
-    this.layout = stateLayout(V, nc);
-    this.state = new Float32Array(this.layout.width * this.layout.height * 4);
-    this.stateTex = new THREE.DataTexture(this.state, this.layout.width, this.layout.height, THREE.RGBAFormat, THREE.FloatType);
-    this.stateTex.minFilter = this.stateTex.magFilter = THREE.NearestFilter;
-    this.stateTex.generateMipmaps = false;
-    this.posed = null;
-    this.visibility = new Float32Array(V * nc);
-    this.peakVis = new Float32Array(V * MAX_PEAKS).fill(1); // (V, 4): peak p's visible fraction at vertex v
+    if (this.decode) {
+      const d = this.decode;
+      need(arrays[d.basis] && arrays[d.basis].length === V * 4 * d.texels && arrays[d.rows] && arrays[d.rows].length === 2 * V,
+        'the GPU decode\'s arrays are missing or have the wrong size (re-run `prt web`)');
+    }
+    this.posed = Array.from({ length: nChars }, () => null);
+    this.visibility = new Float32Array(nChars * V * nc);
+    this.peakVis = new Float32Array(nChars * V * MAX_PEAKS).fill(1); // (K, V, 4): peak p's visible fraction at vertex v
+    this.skins = new Float32Array(nChars * m.n_joints * 16); // (K, J, 4, 4) each character's skinning matrices
+    this.offsets = this.gridOffsets(nChars);
     this.hasPeaks = m.lights.some((l) => l.peaks);
     this.peaksOn = this.hasPeaks; // on by default when the site has peaks
     this.peakDirs = new Float32Array(0); // (P, 3) the active peaks' directions, turned with the light
@@ -154,10 +197,28 @@ class App {
     this.azimuth = m.camera.azimuth;
     this.elevation = m.camera.elevation;
     this.exposure = null; // {exposure, white}: fixed per lighting preset by `prt web` (the Python player's rule)
-    this.stats = { pose_ms: 0, visibility_ms: 0, peaks_ms: 0, render_ms: 0, step_ms: 0, fps: 0, steps: 0 };
+    // pose_ms: posing (JS: features + LBS + frames), visibility_ms: the wasm inference (latent or visibility graph),
+    // peaks_ms: the peak graph, render_ms: upload + draw (waited for when syncGpu), step_ms: their sum
+    this.stats = { pose_ms: 0, visibility_ms: 0, peaks_ms: 0, render_ms: 0, step_ms: 0, fps: 0, steps: 0, characters: nChars };
     this.hasTexture = Boolean(texture) && Boolean(arrays.uv);
     this.perPixel = this.hasTexture;
     this.initThree(glsl, texture);
+  }
+
+  // (K*3) world offsets of K characters on a square grid, 1.5 x the rest mesh's horizontal extent apart, centred
+  gridOffsets(n) {
+    const rest = this.a.rest_vertices;
+    const lo = [Infinity, Infinity], hi = [-Infinity, -Infinity];
+    for (let v = 0; v < this.V; v++) for (let e = 0; e < 2; e++) { lo[e] = Math.min(lo[e], rest[3 * v + e]); hi[e] = Math.max(hi[e], rest[3 * v + e]); }
+    const step = 1.5 * Math.max(hi[0] - lo[0], hi[1] - lo[1]);
+    const cols = Math.ceil(Math.sqrt(n)), rows = Math.ceil(n / cols);
+    this.gridScale = n > 1 ? 1 + step * (cols - 1) / this.m.camera.radius : 1;
+    const out = new Float32Array(3 * n);
+    for (let c = 0; c < n; c++) {
+      out[3 * c] = (c % cols - (cols - 1) / 2) * step;
+      out[3 * c + 1] = (Math.floor(c / cols) - (rows - 1) / 2) * step;
+    }
+    return out;
   }
 
   initThree(glsl, texture) {
@@ -165,6 +226,21 @@ class App {
     THREE.ColorManagement.enabled = false; // the shader writes display colours itself
     const canvas = $('canvas');
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false, preserveDrawingBuffer: true });
+    const gl = this.renderer.getContext();
+    const maxSize = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+    this.layout = stateLayout(this.nChars * this.V, this.nc, Boolean(this.decode), this.texWidth, maxSize);
+    this.state = new Float32Array(this.layout.width * this.layout.height * 4);
+    this.stateTex = itemTexture(this.state, this.layout);
+    this.decodeOptions = null;
+    if (this.decode) {
+      const d = this.decode, ng = d.groups.length;
+      this.basisLayout = texelLayout(this.V, d.texels, this.texWidth, maxSize, 'the GPU decode\'s basis texture');
+      this.basisTex = itemTexture(this.a[d.basis], this.basisLayout);
+      this.tz = Math.max(1, Math.ceil(d.k_max / 4));
+      this.latent = new Float32Array(this.tz * 4 * ng * this.nChars);
+      this.latentTex = itemTexture(this.latent, { width: this.tz, height: ng * this.nChars });
+      this.decodeOptions = { layout: this.basisLayout, latentRows: ng };
+    }
     this.renderer.outputColorSpace = THREE.LinearSRGBColorSpace;
     this.renderer.setPixelRatio(1);
     this.renderer.setSize(m.camera.width, m.camera.height, false);
@@ -175,7 +251,8 @@ class App {
     const bg = m.background;
     this.renderer.setClearColor(new THREE.Color(bg[0], bg[1], bg[2]), 1);
     this.scene = new THREE.Scene();
-    this.camera = new THREE.PerspectiveCamera(m.camera.view_angle, m.camera.width / m.camera.height, 0.01 * m.camera.radius, 20 * m.camera.radius);
+    this.camera = new THREE.PerspectiveCamera(m.camera.view_angle, m.camera.width / m.camera.height, 0.01 * m.camera.radius,
+      20 * m.camera.radius * this.gridScale);
     this.camera.up.set(...m.camera.up);
     const sizes = { order: m.order, nTerms: m.n_terms, nLobes: m.lights[0].dirs.length };
     for (const l of m.lights) {
@@ -186,9 +263,11 @@ class App {
     this.sizes = sizes;
     this.glsl = glsl;
     this.matrixForm = new URLSearchParams(location.search).get('form') === 'matrix';
-    this.material = makeMaterial(glsl, sizes, this.layout, m.gaunt, this.matrixForm);
+    this.material = makeMaterial(glsl, sizes, this.layout, m.gaunt, this.matrixForm, { decode: this.decodeOptions });
     const u = this.material.uniforms;
     u.u_state.value = this.stateTex;
+    u.u_nVertices.value = this.V;
+    if (this.decode) { u.u_basis.value = this.basisTex; u.u_latent.value = this.latentTex; }
     u.u_unshadowedVis.value.set(m.unshadowed);
     u.u_gamma.value = m.tonemap.gamma;
     const mat = m.material || {};
@@ -196,21 +275,27 @@ class App {
     u.u_baseTex.value = texture || null;
     this.rpoTex = m.rpos.map((r) => rpoTexture(this.a[r.M], m.n_terms, this.nc));
     // geometry: indexed (one shading per vertex); non-indexed per corner when a texture needs corner UVs
-    const g = new THREE.BufferGeometry();
+    const g = new THREE.InstancedBufferGeometry(); // one instance per character (a_instance)
+    g.instanceCount = this.nChars;
+    g.setAttribute('a_instance', new THREE.InstancedBufferAttribute(Float32Array.from({ length: this.nChars }, (_, i) => i), 1));
     const faces = this.a.faces, base = this.a.base_color, rest = this.a.rest_vertices;
+    const rows = this.decode ? this.a[this.decode.rows] : null;
     if (this.hasTexture) {
       const n = faces.length;
       const vid = new Float32Array(n), uv = new Float32Array(2 * n), b3 = new Float32Array(3 * n), p3 = new Float32Array(3 * n);
+      const dec = new Float32Array(2 * n);
       for (let c = 0; c < n; c++) {
         const v = faces[c];
         vid[c] = v;
         uv[2 * c] = this.a.uv[2 * c]; uv[2 * c + 1] = this.a.uv[2 * c + 1];
         for (let e = 0; e < 3; e++) { b3[3 * c + e] = base[3 * v + e]; p3[3 * c + e] = rest[3 * v + e]; }
+        if (rows) { dec[2 * c] = rows[2 * v]; dec[2 * c + 1] = rows[2 * v + 1]; }
       }
       g.setAttribute('position', new THREE.BufferAttribute(p3, 3));
       g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
       g.setAttribute('a_uv', new THREE.BufferAttribute(uv, 2));
       g.setAttribute('a_base', new THREE.BufferAttribute(b3, 3));
+      if (rows) g.setAttribute('a_decode', new THREE.BufferAttribute(dec, 2));
     } else {
       const vid = new Float32Array(this.V);
       for (let v = 0; v < this.V; v++) vid[v] = v;
@@ -218,6 +303,7 @@ class App {
       g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
       g.setAttribute('a_uv', new THREE.BufferAttribute(new Float32Array(2 * this.V), 2));
       g.setAttribute('a_base', new THREE.BufferAttribute(base, 3));
+      if (rows) g.setAttribute('a_decode', new THREE.BufferAttribute(rows, 2));
       g.setIndex(new THREE.BufferAttribute(faces, 1));
     }
     this.mesh = new THREE.Mesh(g, this.material);
@@ -276,22 +362,40 @@ class App {
   }
 
   applyCamera() {
-    const eye = cameraEye(this.m.camera, this.azimuth, this.elevation);
+    const eye = cameraEye(this.m.camera, this.azimuth, this.elevation, this.gridScale);
     this.eye = eye;
     this.camera.position.set(...eye);
     this.camera.lookAt(...this.m.camera.center);
     this.material.uniforms.u_eye.value.set(...eye);
   }
 
-  localNow() {
-    const c = this.clipInfo;
-    return Poser.localFromClip(this.a[c.array], this.frame, this.m.n_joints);
+  // character c's local transforms now: clip (clip + c) % #clips, frame (frame + 3 c) % its frames
+  localNow(c = 0) {
+    const clips = this.m.clips, ci = clips[(this.clip + c) % clips.length];
+    return Poser.localFromClip(this.a[ci.array], (this.frame + 3 * c) % ci.frames, this.m.n_joints);
   }
 
   async runVisibility(features, batch = 1) {
+    if (!this.session) this.session = await createSession(this.m.model, 'the visibility model');
     const input = new ort.Tensor('float32', features, [batch, this.m.n_features]);
     const out = await this.session.run({ [this.m.model.input]: input });
     return out[this.m.model.output].data;
+  }
+
+  // z (batch, Gz, Kz) of the latent graph for pose features (batch * A): {data, dims}
+  async runLatent(features, batch = 1) {
+    const d = this.decode;
+    const input = new ort.Tensor('float32', features, [batch, this.m.n_features]);
+    const out = (await this.latentSession.run({ [d.input]: input }))[d.output];
+    return { data: out.data, dims: out.dims };
+  }
+
+  // the latent texture from z of nChars characters (rounded as the CPU path does, quantizeLatent)
+  fillLatent(z, nChars = this.nChars) {
+    need(z.dims.length === 3 && z.dims[0] >= nChars && this.decode.groups.every((g) => g.row < z.dims[1] && g.k_used <= z.dims[2]),
+      `the latent graph returned z of shape [${z.dims}], the site's decode needs ${nChars} x clusters x k`);
+    quantizeLatent(z.data, z.dims, this.decode.groups, this.latent, this.tz, nChars);
+    this.latentTex.needsUpdate = true;
   }
 
   // peak visibility (B, V, P) of posed positions / normals (B*V*3) and skinning matrices (B*J*16, row-major 4x4)
@@ -309,14 +413,18 @@ class App {
     return out[this.m.peaks_model.output].data;
   }
 
-  // the state texture from per-vertex arrays: positions (V*3), frames (V*9), visibility (V*NC), peak visibility
-  // (V*4, peak p of vertex v at 4v + p); visibility null leaves the coefficients as they are
-  fillState(pos, fr, vis, peakVis) {
+  // character c's items of the state texture from per-vertex arrays: positions (V*3, moved by the character's grid
+  // offset), frames (V*9), visibility (V*NC; GPU decode: unused), peak visibility (V*4, peak p of vertex v at 4v + p);
+  // visibility null leaves the coefficients as they are
+  fillState(c, pos, fr, vis, peakVis) {
     const { P, R } = this.layout;
-    const st = this.state, nc = this.nc;
-    for (let v = 0; v < this.V; v++) {
-      const o = 4 * ((Math.floor(v / R) * R * P) + (v % R) * P);
-      st[o] = pos[3 * v]; st[o + 1] = pos[3 * v + 1]; st[o + 2] = pos[3 * v + 2];
+    const st = this.state, nc = this.nc, V = this.V;
+    const ox = this.offsets[3 * c], oy = this.offsets[3 * c + 1], oz = this.offsets[3 * c + 2];
+    const withVis = vis && !this.decode;
+    for (let v = 0; v < V; v++) {
+      const i = c * V + v;
+      const o = 4 * ((Math.floor(i / R) * R * P) + (i % R) * P);
+      st[o] = pos[3 * v] + ox; st[o + 1] = pos[3 * v + 1] + oy; st[o + 2] = pos[3 * v + 2] + oz;
       for (let r = 0; r < 3; r++) {
         st[o + 4 * (r + 1)] = fr[9 * v + 3 * r];
         st[o + 4 * (r + 1) + 1] = fr[9 * v + 3 * r + 1];
@@ -324,32 +432,45 @@ class App {
       }
       const q = o + 4 * PEAK_TEXEL;
       for (let p = 0; p < MAX_PEAKS; p++) st[q + p] = peakVis[MAX_PEAKS * v + p];
-      if (vis) for (let i = 0; i < nc; i++) st[o + 4 * VIS_TEXEL + i] = vis[v * nc + i];
+      if (withVis) for (let k = 0; k < nc; k++) st[o + 4 * VIS_TEXEL + k] = vis[v * nc + k];
     }
     this.stateTex.needsUpdate = true;
   }
 
-  // one step: pose the current frame, run the model (and the peak graph), upload, render
+  // one step: pose the current frame of every character (features, then LBS + frames), run the model once for all
+  // of them (latent graph, or the visibility graph) and the peak graph, upload, render; each part timed apart
   async step() {
     const t0 = performance.now();
-    const local = this.localNow();
-    const feats = this.poser.features(local);
-    const visPromise = this.unshadowed ? null : this.runVisibility(feats);
-    this.posed = this.poser.pose(local, this.posed);
+    const K = this.nChars, V = this.V, A = this.m.n_features, nc = this.nc;
+    const locals = [], feats = new Float32Array(K * A);
+    for (let c = 0; c < K; c++) { locals.push(this.localNow(c)); feats.set(this.poser.features(locals[c]), c * A); }
+    const tf = performance.now();
+    if (!this.unshadowed) {
+      if (this.decode) this.fillLatent(await this.runLatent(feats, K));
+      else this.visibility = await this.runVisibility(feats, K);
+    }
     const t1 = performance.now();
-    if (visPromise) this.visibility = await visPromise;
+    const J16 = 16 * this.m.n_joints;
+    for (let c = 0; c < K; c++) {
+      this.posed[c] = this.poser.pose(locals[c], this.posed[c]);
+      this.skins.set(this.poser.skin, c * J16);
+    }
     const t2 = performance.now();
     const pk = this.activePeaks();
     if (pk && this.peakSession && !this.unshadowed) {
-      const n = pk.directions.length, V = this.V;
-      const pv = await this.runPeaks(this.posed.positions, this.posed.normals, this.poser.skin, this.peakDirs,
-        pk.angular_radii);
-      for (let v = 0; v < V; v++) for (let p = 0; p < n; p++) this.peakVis[MAX_PEAKS * v + p] = pv[n * v + p];
+      const n = pk.directions.length;
+      const cat = (key) => { const o = new Float32Array(K * 3 * V); this.posed.forEach((p, c) => o.set(p[key], c * 3 * V)); return o; };
+      const pv = await this.runPeaks(cat('positions'), cat('normals'), this.skins, this.peakDirs, pk.angular_radii, K);
+      for (let i = 0; i < K * V; i++) for (let p = 0; p < n; p++) this.peakVis[MAX_PEAKS * i + p] = pv[n * i + p];
     } else {
       this.peakVis.fill(1); // unshadowed, or no peak graph: the BRDF's horizon only
     }
     const t2p = performance.now();
-    this.fillState(this.posed.positions, this.posed.frames, this.unshadowed ? null : this.visibility, this.peakVis);
+    for (let c = 0; c < K; c++) {
+      this.fillState(c, this.posed[c].positions, this.posed[c].frames,
+        this.unshadowed ? null : this.visibility.subarray(c * V * nc, (c + 1) * V * nc),
+        this.peakVis.subarray(c * V * MAX_PEAKS, (c + 1) * V * MAX_PEAKS));
+    }
     const u = this.material.uniforms;
     u.u_unshadowed.value = this.unshadowed;
     u.u_perPixel.value = this.perPixel && this.hasTexture;
@@ -360,7 +481,8 @@ class App {
     }
     const t3 = performance.now();
     const s = this.stats;
-    s.pose_ms = t1 - t0; s.visibility_ms = t2 - t1; s.peaks_ms = t2p - t2; s.render_ms = t3 - t2p; s.step_ms = t3 - t0;
+    s.pose_ms = (tf - t0) + (t2 - t1); s.visibility_ms = t1 - tf; s.peaks_ms = t2p - t2; s.render_ms = t3 - t2p;
+    s.step_ms = t3 - t0;
     s.steps += 1;
     return { ...s };
   }
@@ -371,7 +493,7 @@ class App {
     if (!this.radianceScene) {
       const rows = Math.ceil(this.V / RADIANCE_WIDTH);
       const mat = makeMaterial(this.glsl, this.sizes, this.layout, this.m.gaunt, this.matrixForm,
-        { radianceOut: true, uniforms: this.material.uniforms });
+        { radianceOut: true, uniforms: this.material.uniforms, decode: this.decodeOptions });
       const g = new THREE.BufferGeometry();
       const vid = new Float32Array(this.V);
       for (let v = 0; v < this.V; v++) vid[v] = v;
@@ -379,6 +501,8 @@ class App {
       g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
       g.setAttribute('a_uv', new THREE.BufferAttribute(new Float32Array(2 * this.V), 2));
       g.setAttribute('a_base', new THREE.BufferAttribute(this.a.base_color, 3));
+      g.setAttribute('a_instance', new THREE.BufferAttribute(new Float32Array(this.V), 1)); // character 0
+      if (this.decode) g.setAttribute('a_decode', new THREE.BufferAttribute(this.a[this.decode.rows], 2));
       const pts = new THREE.Points(g, mat);
       pts.frustumCulled = false;
       this.radianceScene = new THREE.Scene();
@@ -496,7 +620,8 @@ function loop(app) {
       if (now - fpsT0 > 500) { app.stats.fps = frames * 1000 / (now - fpsT0); frames = 0; fpsT0 = now; }
       $('stats').textContent = `${app.clipInfo.name} ${app.frame}  ${app.m.rpos[app.brdf].name}  ${app.m.lights[app.light].name}` +
         `${app.unshadowed ? '  UNSHADOWED' : ''}${app.activePeaks() ? `  ${app.activePeaks().directions.length} peak(s)` : ''}` +
-        `\nstep ${s.step_ms.toFixed(1)} ms (pose ${s.pose_ms.toFixed(1)}, visibility ${s.visibility_ms.toFixed(1)}, ` +
+        `\n${app.nChars > 1 ? `${app.nChars} characters  ` : ''}step ${s.step_ms.toFixed(1)} ms (pose ${s.pose_ms.toFixed(1)}, ` +
+        `${app.decode ? 'latent (GPU decode)' : 'visibility'} ${s.visibility_ms.toFixed(1)}, ` +
         `peaks ${s.peaks_ms.toFixed(1)}, draw submit ${s.render_ms.toFixed(1)})  ${app.stats.fps.toFixed(1)} fps`;
     } catch (e) {
       app.paused = true;
@@ -508,6 +633,18 @@ function loop(app) {
   requestAnimationFrame(tick);
 }
 
+// an onnxruntime-web session of the graph of a manifest entry {file, bytes, sha256}
+async function createSession(entry, what) {
+  const bytes = await (await fetchOk(entry.file, what)).arrayBuffer();
+  await checkBytes(bytes, entry, entry.file, what);
+  try {
+    return await ort.InferenceSession.create(new Uint8Array(bytes), { executionProviders: ['wasm'] });
+  } catch (e) {
+    const runtime = await missingRuntime(); // ort's own message for a missing runtime file names no file
+    throw new AssetError(runtime || `${what} (${ASSETS}${entry.file}) could not be loaded by onnxruntime-web: ${e.message || e}`);
+  }
+}
+
 async function start() {
   const m = await loadManifest();
   const arrays = await loadArrays(m);
@@ -515,15 +652,12 @@ async function start() {
   ort.env.wasm.wasmPaths = new URL('./vendor/ort/', location.href).href;
   ort.env.wasm.numThreads = self.crossOriginIsolated ? Math.min(4, navigator.hardwareConcurrency || 1) : 1;
   window.prt.wasmThreads = ort.env.wasm.numThreads; // threads need cross-origin isolation (prt web --serve sends it)
-  let session;
-  const model = await (await fetchOk(m.model.file, 'the visibility model')).arrayBuffer();
-  await checkBytes(model, m.model, m.model.file, 'the visibility model');
-  try {
-    session = await ort.InferenceSession.create(new Uint8Array(model), { executionProviders: ['wasm'] });
-  } catch (e) {
-    const runtime = await missingRuntime(); // ort's own message for a missing runtime file names no file
-    throw new AssetError(runtime || `the visibility model (${ASSETS}${m.model.file}) could not be loaded by onnxruntime-web: ${e.message || e}`);
-  }
+  const params = new URLSearchParams(location.search);
+  // GPU decode: the latent graph per frame (the visibility graph only on demand); ?decode=cpu: the whole visibility
+  // graph per frame as for an export without a latent graph
+  const gpuDecode = Boolean(m.decode) && params.get('decode') !== 'cpu';
+  const latentSession = gpuDecode ? await createSession(m.decode, 'the latent model') : null;
+  const session = gpuDecode ? null : await createSession(m.model, 'the visibility model');
   let peakSession = null;
   if (m.peaks_model) {
     const pm = await (await fetchOk(m.peaks_model.file, 'the peak visibility model')).arrayBuffer();
@@ -535,10 +669,11 @@ async function start() {
     }
   }
   const texture = m.material && m.material.texture ? await loadTexture(m.material.texture) : null;
-  const app = new App(m, arrays, session, glsl, texture, peakSession);
+  const app = new App(m, arrays, session, glsl, texture, peakSession, latentSession,
+    { characters: params.has('characters') ? Number(params.get('characters')) : 1,
+      texWidth: params.has('texwidth') ? Number(params.get('texwidth')) : TEXTURE_WIDTH });
   window.prt.app = app;
   bindUi(app);
-  const params = new URLSearchParams(location.search);
   if (params.has('paused')) { app.playing = false; app.paused = true; }
   await app.step(); // compiles the shader: errors surface here
   loop(app);
@@ -578,12 +713,32 @@ window.prt = {
     need(this.app.peakSession, 'the site has no peak visibility model');
     return Array.from(await this.app.runPeaks(a.positions, a.normals, a.skin, a.directions, a.angular_radii, a.batch || 1));
   },
-  // per-vertex radiance (V*3, before the base colour) of the last rendered step, or of given per-vertex inputs
-  // {positions (V*3), frames (V*9), visibility (V*NC), peakVisibility (V*4)} under the current settings
-  radiance(inputs) {
+  // per-vertex radiance (V*3, before the base colour) of character 0 as last rendered, or of given per-vertex inputs
+  // {positions (V*3), frames (V*9), visibility (V*NC), peakVisibility (V*4)} under the current settings; with the GPU
+  // decode the visibility comes from {latent (Gz*Kz, z of one character), latentDims [1, Gz, Kz]} or {features (A)}
+  // (the latent graph run here) instead
+  async radiance(inputs) {
     const app = this.app;
-    if (inputs) app.fillState(inputs.positions, inputs.frames, inputs.visibility, inputs.peakVisibility);
+    if (inputs) {
+      if (app.decode && inputs.features) app.fillLatent(await app.runLatent(Float32Array.from(inputs.features), 1), 1);
+      else if (app.decode && inputs.latent) app.fillLatent({ data: Float32Array.from(inputs.latent), dims: inputs.latentDims }, 1);
+      app.fillState(0, inputs.positions, inputs.frames, inputs.visibility, inputs.peakVisibility);
+    }
     return Array.from(app.radiance());
+  },
+  // the latent graph's z (B*Gz*Kz) in onnxruntime-web for pose features (B*A): {data, dims}
+  async latent(features, batch) {
+    need(this.app.decode, 'the page runs no latent graph (no GPU decode)');
+    const z = await this.app.runLatent(Float32Array.from(features), batch);
+    return { data: Array.from(z.data), dims: Array.from(z.dims) };
+  },
+  // what the page is: decode path, characters, texture layouts, the GL renderer string
+  info() {
+    const app = this.app, gl = app.renderer.getContext();
+    const e = gl.getExtension('WEBGL_debug_renderer_info');
+    return { decode: app.decode ? 'gpu' : 'visibility graph', characters: app.nChars, state: app.layout,
+      basis: app.basisLayout || null, renderer: e ? gl.getParameter(e.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER),
+      maxTextureSize: gl.getParameter(gl.MAX_TEXTURE_SIZE), wasmThreads: this.wasmThreads };
   },
   activePeaks() { const pk = this.app.activePeaks(); return pk ? { directions: Array.from(this.app.peakDirs), angular_radii: pk.angular_radii } : null; },
   skin() { return Array.from(this.app.poser.skin); },

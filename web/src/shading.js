@@ -1,8 +1,23 @@
 // The three.js material that runs prt_shading.glsl per vertex (RawShaderMaterial, GLSL ES 3.00).
 //
-// Per-frame state: one RGBA32F texture, P = 5 + ceil(NC / 4) texels per vertex - position, t, b, n (xyz each), the
-// visible fractions of the (up to 4) peak lights, then the NC visibility coefficients packed 4 per texel. Vertex v's
-// texel p sits at (x, y) = ((v % R) P + p, v / R).
+// TEXEL LAYOUT (the one rule of every per-vertex texture, texelLayout below; the shader's prtItemTexel is the same
+// formula): item i (a vertex of the basis texture, instance * V + vertex of the state texture) owns P consecutive
+// RGBA texels; a row of the texture holds R = floor(W / P) items (width R P <= W); texel p of item i sits at
+//     (x, y) = ((i % R) P + p, floor(i / R)),   flat texel index y (R P) + x = i P + p,
+// so a texture's data is its items' texels back to back (the site writes the GPU decode's bases that way) and a
+// character of n items needs ceil(n / R) <= MAX_TEXTURE_SIZE rows: W = min(4096, MAX_TEXTURE_SIZE), or ?texwidth=W
+// (tests: a narrow W puts a small character on many rows).
+//
+// Per-frame state (RGBA32F): per item P = 5 texels with the GPU decode - position, t, b, n (xyz each), the visible
+// fractions of the (up to 4) peak lights - and, without it (an export with no latent graph: the page runs the whole
+// visibility graph), the NC visibility coefficients after them, packed 4 per texel (P = 5 + ceil(NC / 4)).
+//
+// GPU decode (PRT_GPU_DECODE): the basis texture (RGBA16F, static) holds per vertex P = T (K + 1) texels, T =
+// ceil(NC / 4): the mean, then the vertex's cluster's K basis rows (prt_torch.web.site.decode_texture); the latent
+// texture (RGBA32F, per frame) holds z: row c * G + g = character c's cluster row g, ceil(Kz / 4) texels of its
+// rounded latent (the CPU path's int8 rounding, main.js quantizeLatent). The vertex shader forms
+//     vis = mean + sum_{k < k_used} z[row, k] basis_k          (prtDecodeVisibility)
+// and shades as before.
 //
 // makeMaterial(..., {radianceOut: true}) is the same vertex shader drawing vertex v as one point at pixel
 // (v % RADIANCE_WIDTH, v / RADIANCE_WIDTH) of a float target, its radiance before the base colour (window.prt.radiance).
@@ -14,11 +29,19 @@ export const PEAK_TEXEL = 4;
 export const VIS_TEXEL = 5;
 export const MAX_PEAKS = 4;
 
-export function stateLayout(nVertices, nCoeffs) {
-  const P = VIS_TEXEL + Math.ceil(nCoeffs / 4);
-  const R = Math.floor(TEXTURE_WIDTH / P);
-  const rows = Math.ceil(nVertices / R);
+// the texel layout of n items of P texels each in textures at most `width` wide (the rule above); `maxSize` the
+// context's MAX_TEXTURE_SIZE: more rows than that is an error naming the sizes
+export function texelLayout(nItems, P, width = TEXTURE_WIDTH, maxSize = Infinity, what = 'a per-vertex texture') {
+  const W = Math.min(width, maxSize);
+  if (!(P <= W)) throw new Error(`${what}: ${P} texels per vertex do not fit a texture row of ${W} texels`);
+  const R = Math.floor(W / P);
+  const rows = Math.max(1, Math.ceil(nItems / R));
+  if (rows > maxSize) throw new Error(`${what}: ${nItems} vertices need ${rows} rows of ${R}, more than MAX_TEXTURE_SIZE ${maxSize}`);
   return { P, R, width: R * P, height: rows };
+}
+
+export function stateLayout(nItems, nCoeffs, gpuDecode = false, width = TEXTURE_WIDTH, maxSize = Infinity) {
+  return texelLayout(nItems, VIS_TEXEL + (gpuDecode ? 0 : Math.ceil(nCoeffs / 4)), width, maxSize, 'the state texture');
 }
 
 const PRECISION = 'precision highp float;\nprecision highp int;\nprecision highp sampler2D;\n';
@@ -47,32 +70,75 @@ uniform vec3 u_peakPower[PRT_MAX_PEAKS];
 uniform int u_brdfKind;
 uniform vec4 u_brdfParams;
 uniform int u_radianceRows;
+uniform int u_nVertices;
+#ifdef PRT_GPU_DECODE
+uniform highp sampler2D u_basis;
+uniform highp sampler2D u_latent;
+in vec2 a_decode;  // (the vertex's row of z, its cluster's k_used)
+#endif
 in vec3 position;
 in float a_vid;
+in float a_instance;
 in vec2 a_uv;
 in vec3 a_base;
 out vec3 v_color;
 out vec3 v_radiance;
 out vec2 v_uv;
 
-vec4 stateTexel(int v, int p) {
-  return texelFetch(u_state, ivec2((v % STATE_R) * STATE_P + p, v / STATE_R), 0);
+// texel p of item i of a texture laid out with P texels per item, R items per row (shading.js texelLayout)
+ivec2 prtItemTexel(int i, int p, int P, int R) {
+  return ivec2((i % R) * P + p, i / R);
 }
+
+vec4 stateTexel(int item, int p) {
+  return texelFetch(u_state, prtItemTexel(item, p, STATE_P, STATE_R), 0);
+}
+
+#define PRT_T ((NC + 3) / 4)
+#ifdef PRT_GPU_DECODE
+// vis = mean + sum_k z[row, k] basis_k of vertex vid, character inst (the module doc)
+void prtDecodeVisibility(int vid, int inst, out float vis[NC]) {
+  int row = int(a_decode.x + 0.5);
+  int kUsed = int(a_decode.y + 0.5);
+  int zRow = inst * LATENT_ROWS + row;
+  vec4 acc[PRT_T];
+  for (int q = 0; q < PRT_T; q++) acc[q] = texelFetch(u_basis, prtItemTexel(vid, q, BASIS_P, BASIS_R), 0);
+  for (int k = 0; k < kUsed; k++) {
+    float z = texelFetch(u_latent, ivec2(k / 4, zRow), 0)[k % 4];
+    for (int q = 0; q < PRT_T; q++) acc[q] += z * texelFetch(u_basis, prtItemTexel(vid, (k + 1) * PRT_T + q, BASIS_P, BASIS_R), 0);
+  }
+  for (int q = 0; q < PRT_T; q++) {
+    int j = 4 * q;
+    vis[j] = acc[q].x;
+    if (j + 1 < NC) vis[j + 1] = acc[q].y;
+    if (j + 2 < NC) vis[j + 2] = acc[q].z;
+    if (j + 3 < NC) vis[j + 3] = acc[q].w;
+  }
+}
+#endif
 
 void main() {
   int vid = int(a_vid + 0.5);
-  vec3 pos = stateTexel(vid, 0).xyz;
-  vec3 t = stateTexel(vid, 1).xyz;
-  vec3 b = stateTexel(vid, 2).xyz;
-  vec3 n = stateTexel(vid, 3).xyz;
+  int inst = int(a_instance + 0.5);
+  int item = inst * u_nVertices + vid;
+  vec3 pos = stateTexel(item, 0).xyz;
+  vec3 t = stateTexel(item, 1).xyz;
+  vec3 b = stateTexel(item, 2).xyz;
+  vec3 n = stateTexel(item, 3).xyz;
   float vis[NC];
-  for (int q = 0; q < (NC + 3) / 4; q++) {
-    vec4 c = stateTexel(vid, VIS_TEXEL + q);
-    int j = 4 * q;
-    vis[j] = c.x;
-    if (j + 1 < NC) vis[j + 1] = c.y;
-    if (j + 2 < NC) vis[j + 2] = c.z;
-    if (j + 3 < NC) vis[j + 3] = c.w;
+  if (!u_unshadowed) {
+#ifdef PRT_GPU_DECODE
+    prtDecodeVisibility(vid, inst, vis);
+#else
+    for (int q = 0; q < PRT_T; q++) {
+      vec4 c = stateTexel(item, VIS_TEXEL + q);
+      int j = 4 * q;
+      vis[j] = c.x;
+      if (j + 1 < NC) vis[j + 1] = c.y;
+      if (j + 2 < NC) vis[j + 2] = c.z;
+      if (j + 3 < NC) vis[j + 3] = c.w;
+    }
+#endif
   }
   if (u_unshadowed) {
     for (int i = 0; i < NC; i++) vis[i] = u_unshadowedVis[i];
@@ -89,7 +155,7 @@ void main() {
   vec3 L = prtRadianceFused(vis, l, wo, u_rpoU, u_rpoW, u_tint);
 #endif
   if (u_nPeaks > 0) {
-    vec4 peakVis = u_unshadowed ? vec4(1.0) : stateTexel(vid, PEAK_TEXEL);
+    vec4 peakVis = u_unshadowed ? vec4(1.0) : stateTexel(item, PEAK_TEXEL);
     L += prtPeakRadiance(t, b, n, wo, u_nPeaks, u_peakDir, u_peakPower, peakVis, u_brdfKind, u_brdfParams, u_tint);
   }
 #ifdef PRT_RADIANCE_OUT
@@ -179,10 +245,14 @@ export function lobeAccumUnrolled(order) {
   return st.join(' ');
 }
 
+// layout: the state texture's; options.decode: {layout (the basis texture's), latentRows (G)} for PRT_GPU_DECODE
 export function makeMaterial(glsl, sizes, layout, gaunt, matrixForm = false, options = {}) {
+  const dec = options.decode;
   const defines = PRECISION + `#define ORDER ${sizes.order}\n#define NC ${sizes.order * sizes.order}\n` +
     `#define NTERMS ${sizes.nTerms}\n#define NLOBES ${sizes.nLobes}\n` +
     `#define STATE_P ${layout.P}\n#define STATE_R ${layout.R}\n` +
+    (dec ? `#define PRT_GPU_DECODE\n#define BASIS_P ${dec.layout.P}\n#define BASIS_R ${dec.layout.R}\n` +
+      `#define LATENT_ROWS ${dec.latentRows}\n` : '') +
     `#define PEAK_TEXEL ${PEAK_TEXEL}\n#define VIS_TEXEL ${VIS_TEXEL}\n#define RADIANCE_WIDTH ${RADIANCE_WIDTH}\n` +
     (options.radianceOut ? '#define PRT_RADIANCE_OUT\n' : '') +
     `#define PRT_GAUNT_PRODUCT ${gauntProduct(gaunt)}\n` +
@@ -212,6 +282,9 @@ export function makeMaterial(glsl, sizes, layout, gaunt, matrixForm = false, opt
     u_brdfKind: { value: 0 },
     u_brdfParams: { value: new THREE.Vector4(1, 0, 0, 0) },
     u_radianceRows: { value: 1 },
+    u_nVertices: { value: 0 },
+    u_basis: { value: null },
+    u_latent: { value: null },
   };
   return new THREE.RawShaderMaterial({
     glslVersion: THREE.GLSL3,
@@ -230,6 +303,23 @@ export function rpoTexture(M, nTerms, nc) {
     for (let j = 0; j < nc; j++) data[r * texels * 4 + j] = M[r * nc + j];
   }
   const tex = new THREE.DataTexture(data, texels, nTerms * nc, THREE.RGBAFormat, THREE.FloatType);
+  tex.minFilter = tex.magFilter = THREE.NearestFilter;
+  tex.generateMipmaps = false;
+  tex.needsUpdate = true;
+  return tex;
+}
+
+// a float texture (RGBA, nearest, no mipmaps) of `layout` from `data` (its items' texels back to back, shorter than
+// width * height * 4: zero padded here): Float32Array -> RGBA32F, Uint16Array (float16 bits) -> RGBA16F
+export function itemTexture(data, layout) {
+  const n = layout.width * layout.height * 4;
+  const half = data instanceof Uint16Array;
+  let full = data;
+  if (data.length !== n) {
+    full = half ? new Uint16Array(n) : new Float32Array(n);
+    full.set(data.subarray(0, Math.min(data.length, n)));
+  }
+  const tex = new THREE.DataTexture(full, layout.width, layout.height, THREE.RGBAFormat, half ? THREE.HalfFloatType : THREE.FloatType);
   tex.minFilter = tex.magFilter = THREE.NearestFilter;
   tex.generateMipmaps = false;
   tex.needsUpdate = true;
