@@ -21,6 +21,8 @@ import warnings
 from collections.abc import Sequence
 from typing import Any, NoReturn, TextIO
 
+from prt_torch import __version__
+
 #: sub-command name -> module path
 COMMANDS: dict[str, str] = {
     "demo": "prt_torch.commands.demo",
@@ -69,6 +71,7 @@ def add_command_modules(parser: argparse.ArgumentParser, modules: dict[str, str]
 def build_parser() -> argparse.ArgumentParser:
     """The ``prt`` parser: one sub-parser per :data:`COMMANDS` entry, one-line argument errors."""
     parser = PrtArgumentParser(prog="prt", description="prt_torch: learned PRT for animated characters.")
+    parser.add_argument("--version", action="version", version=f"prt {__version__}")
     add_command_modules(parser, COMMANDS, "command", "_run")
     return parser
 

@@ -306,3 +306,15 @@ def test_key_without_effect_is_one_warning_line(work: Path, capsys: pytest.Captu
     assert warned == ["warning: character.density has no effect on a glTF character (it sets the built-in "
                       "humanoid's vertex density); ignored"], err
     assert (work / "out" / "dataset.zarr").is_dir()
+
+
+def test_version_is_the_installed_distributions(capsys: pytest.CaptureFixture[str]) -> None:
+    """``prt --version`` prints the version the installed distribution's metadata records (exit 0)."""
+    from importlib.metadata import version
+
+    from prt_torch.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out.strip() == f"prt {version('prt-torch')}"
