@@ -395,6 +395,7 @@ class App {
     need(z.dims.length === 3 && z.dims[0] >= nChars && this.decode.groups.every((g) => g.row < z.dims[1] && g.k_used <= z.dims[2]),
       `the latent graph returned z of shape [${z.dims}], the site's decode needs ${nChars} x clusters x k`);
     quantizeLatent(z.data, z.dims, this.decode.groups, this.latent, this.tz, nChars);
+    this.lastLatent = z; // z as the graph returned it (window.prt.crowd)
     this.latentTex.needsUpdate = true;
   }
 
@@ -416,11 +417,12 @@ class App {
   // character c's items of the state texture from per-vertex arrays: positions (V*3, moved by the character's grid
   // offset), frames (V*9), visibility (V*NC; GPU decode: unused), peak visibility (V*4, peak p of vertex v at 4v + p);
   // visibility null leaves the coefficients as they are
-  fillState(c, pos, fr, vis, peakVis) {
-    const { P, R } = this.layout;
-    const st = this.state, nc = this.nc, V = this.V;
+  // (target: {layout, state, stateTex}, default the page's own state; visInput's holds the coefficients)
+  fillState(c, pos, fr, vis, peakVis, target = this) {
+    const { P, R } = target.layout;
+    const st = target.state, nc = this.nc, V = this.V;
     const ox = this.offsets[3 * c], oy = this.offsets[3 * c + 1], oz = this.offsets[3 * c + 2];
-    const withVis = vis && !this.decode;
+    const withVis = vis && P > VIS_TEXEL;
     for (let v = 0; v < V; v++) {
       const i = c * V + v;
       const o = 4 * ((Math.floor(i / R) * R * P) + (i % R) * P);
@@ -434,7 +436,19 @@ class App {
       for (let p = 0; p < MAX_PEAKS; p++) st[q + p] = peakVis[MAX_PEAKS * v + p];
       if (withVis) for (let k = 0; k < nc; k++) st[o + 4 * VIS_TEXEL + k] = vis[v * nc + k];
     }
-    this.stateTex.needsUpdate = true;
+    target.stateTex.needsUpdate = true;
+  }
+
+  // with the GPU decode: a state texture of character 0 with the visibility coefficients in it (window.prt.radiance
+  // of a given visibility: the shading checked on its own), drawn by a material without PRT_GPU_DECODE
+  get visInput() {
+    if (!this._visInput) {
+      const layout = stateLayout(this.V, this.nc, false, this.texWidth, this.renderer.getContext().getParameter(
+        this.renderer.getContext().MAX_TEXTURE_SIZE));
+      const state = new Float32Array(layout.width * layout.height * 4);
+      this._visInput = { layout, state, stateTex: itemTexture(state, layout) };
+    }
+    return this._visInput;
   }
 
   // one step: pose the current frame of every character (features, then LBS + frames), run the model once for all
@@ -489,11 +503,16 @@ class App {
 
   // per-vertex radiance (V*3, before the base colour) of the state texture as it is: the same vertex shader, one
   // point per vertex into a float target
-  radiance() {
-    if (!this.radianceScene) {
+  // (fromVisibility: of the visInput state, the coefficients given, not decoded; instance: which character)
+  radiance(fromVisibility = false, instance = 0) {
+    const key = fromVisibility && this.decode ? 'vis' : 'own';
+    this.radianceScenes = this.radianceScenes || {};
+    if (!this.radianceScenes[key]) {
       const rows = Math.ceil(this.V / RADIANCE_WIDTH);
-      const mat = makeMaterial(this.glsl, this.sizes, this.layout, this.m.gaunt, this.matrixForm,
-        { radianceOut: true, uniforms: this.material.uniforms, decode: this.decodeOptions });
+      const own = key === 'own';
+      const uniforms = own ? this.material.uniforms : { ...this.material.uniforms, u_state: { value: this.visInput.stateTex } };
+      const mat = makeMaterial(this.glsl, this.sizes, own ? this.layout : this.visInput.layout, this.m.gaunt,
+        this.matrixForm, { radianceOut: true, uniforms, decode: own ? this.decodeOptions : null });
       const g = new THREE.BufferGeometry();
       const vid = new Float32Array(this.V);
       for (let v = 0; v < this.V; v++) vid[v] = v;
@@ -501,13 +520,13 @@ class App {
       g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
       g.setAttribute('a_uv', new THREE.BufferAttribute(new Float32Array(2 * this.V), 2));
       g.setAttribute('a_base', new THREE.BufferAttribute(this.a.base_color, 3));
-      g.setAttribute('a_instance', new THREE.BufferAttribute(new Float32Array(this.V), 1)); // character 0
+      g.setAttribute('a_instance', new THREE.BufferAttribute(new Float32Array(this.V), 1)); // the character read
       if (this.decode) g.setAttribute('a_decode', new THREE.BufferAttribute(this.a[this.decode.rows], 2));
       const pts = new THREE.Points(g, mat);
       pts.frustumCulled = false;
-      this.radianceScene = new THREE.Scene();
-      this.radianceScene.add(pts);
-      this.radianceTarget = new THREE.WebGLRenderTarget(RADIANCE_WIDTH, rows, { type: THREE.FloatType,
+      this.radianceScenes[key] = new THREE.Scene();
+      this.radianceScenes[key].add(pts);
+      this.radianceTarget = this.radianceTarget || new THREE.WebGLRenderTarget(RADIANCE_WIDTH, rows, { type: THREE.FloatType,
         format: THREE.RGBAFormat, minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, depthBuffer: false });
       this.radianceRows = rows;
     }
@@ -521,7 +540,10 @@ class App {
     r.setRenderTarget(this.radianceTarget);
     r.setClearColor(new THREE.Color(0, 0, 0), 0);
     r.clear();
-    r.render(this.radianceScene, this.camera);
+    const inst = this.radianceScenes[key].children[0].geometry.getAttribute('a_instance');
+    need(Number.isInteger(instance) && instance >= 0 && instance < (key === 'vis' ? 1 : this.nChars), `no character ${instance}`);
+    if (inst.array[0] !== instance) { inst.array.fill(instance); inst.needsUpdate = true; }
+    r.render(this.radianceScenes[key], this.camera);
     const px = new Float32Array(RADIANCE_WIDTH * this.radianceRows * 4);
     r.readRenderTargetPixels(this.radianceTarget, 0, 0, RADIANCE_WIDTH, this.radianceRows, px);
     r.setRenderTarget(null);
@@ -715,16 +737,30 @@ window.prt = {
   },
   // per-vertex radiance (V*3, before the base colour) of character 0 as last rendered, or of given per-vertex inputs
   // {positions (V*3), frames (V*9), visibility (V*NC), peakVisibility (V*4)} under the current settings; with the GPU
-  // decode the visibility comes from {latent (Gz*Kz, z of one character), latentDims [1, Gz, Kz]} or {features (A)}
-  // (the latent graph run here) instead
+  // decode, no visibility but {latent (Gz*Kz, z of one character), latentDims [1, Gz, Kz]} or {features (A)} (the
+  // latent graph run here): the visibility decoded on the GPU
   async radiance(inputs) {
     const app = this.app;
+    const fromVis = Boolean(inputs && inputs.visibility && app.decode);
     if (inputs) {
       if (app.decode && inputs.features) app.fillLatent(await app.runLatent(Float32Array.from(inputs.features), 1), 1);
       else if (app.decode && inputs.latent) app.fillLatent({ data: Float32Array.from(inputs.latent), dims: inputs.latentDims }, 1);
-      app.fillState(0, inputs.positions, inputs.frames, inputs.visibility, inputs.peakVisibility);
+      app.fillState(0, inputs.positions, inputs.frames, inputs.visibility, inputs.peakVisibility, fromVis ? app.visInput : app);
     }
-    return Array.from(app.radiance());
+    return Array.from(app.radiance(fromVis));
+  },
+  // per-vertex radiance (V*3) of character c as last rendered (a crowd page)
+  radianceOf(c) { return Array.from(this.app.radiance(false, c)); },
+  // the crowd: the camera's eye, each character's grid offset (K*3) and pose {clip, frame} now, and the last z the
+  // latent graph returned {data (K*Gz*Kz), dims} (GPU decode; else null)
+  crowd() {
+    const app = this.app, clips = app.m.clips;
+    const z = app.lastLatent;
+    return { eye: app.eye, offsets: Array.from(app.offsets), latent: z ? { data: Array.from(z.data), dims: Array.from(z.dims) } : null,
+      poses: Array.from({ length: app.nChars }, (_, c) => {
+      const ci = clips[(app.clip + c) % clips.length];
+      return { clip: ci.name, frame: (app.frame + 3 * c) % ci.frames };
+    }) };
   },
   // the latent graph's z (B*Gz*Kz) in onnxruntime-web for pose features (B*A): {data, dims}
   async latent(features, batch) {
