@@ -4,35 +4,45 @@ numpy + scipy only (no torch: ``prt play --motion`` runs it on the player's path
 
 **Joint map.** Source and target joints are paired through humanoid *roles* (the built-in humanoid's
 joint names: ``pelvis spine chest neck head``, ``clavicle shoulder elbow wrist`` and
-``hip knee ankle toe`` per side ``_l``/``_r``). Each skeleton's naming family is detected by the number
-of roles its joint names match (case-insensitive; a ``prefix:`` such as ``mixamorig:`` is ignored):
+``hip knee ankle toe`` per side ``_l``/``_r``), found on each skeleton from its topology and rest geometry
+by :func:`prt_torch.rig.joint_map.find_roles` (two leg chains and a spine chain off the pelvis, left/right
+from the rest pose's lateral axis and facing direction, arm chains off the upper spine, the head at the top;
+names only break ties), so exporters' naming habits (prefixes, numbered suffixes, case, joint order) do not
+matter. Fingers, eyes, twist and extra joints stay unmapped (they follow their parent). For example:
 
-=========== ============ ============ ============= =========== =============
-role        cmu-3dsmax   cmu-mobu     mixamo        builtin     cesium
-=========== ============ ============ ============= =========== =============
-pelvis      Hips         Hips         Hips          pelvis      torso_joint_1
-spine       lowerback    LowerBack    Spine         spine       torso_joint_2
-chest       Chest2       Spine1       Spine2/Spine1 chest       torso_joint_3
-neck        lowerneck    Neck         Neck          neck        neck_joint_1
-head        Head         Head         Head          head        neck_joint_2
-clavicle_l  LeftCollar   LeftShoulder LeftShoulder  clavicle_l  (none)
-shoulder_l  LeftShoulder LeftArm      LeftArm       shoulder_l  arm_joint_L_1
-elbow_l     LeftElbow    LeftForeArm  LeftForeArm   elbow_l     arm_joint_L_2
-wrist_l     LeftWrist    LeftHand     LeftHand      wrist_l     arm_joint_L_3
-hip_l       LeftHip      LeftUpLeg    LeftUpLeg     hip_l       leg_joint_L_1
-knee_l      LeftKnee     LeftLeg      LeftLeg       knee_l      leg_joint_L_2
-ankle_l     LeftAnkle    LeftFoot     LeftFoot      ankle_l     leg_joint_L_3
-toe_l       LeftToe      LeftToeBase  LeftToeBase   toe_l       leg_joint_L_5
-=========== ============ ============ ============= =========== =============
+=========== ============ ============ ============= =========== ============= ============
+role        cmu-3dsmax   cmu-mobu     mixamo        builtin     cesium        cmu-daz
+=========== ============ ============ ============= =========== ============= ============
+pelvis      Hips         Hips         Hips          pelvis      torso_joint_1 hip
+spine       lowerback    LowerBack    Spine         spine       torso_joint_2 abdomen
+chest       Chest2       Spine1       Spine2        chest       torso_joint_3 chest
+neck        lowerneck    Neck         Neck          neck        neck_joint_1  neck
+head        Head         Head         Head          head        neck_joint_2  head
+clavicle_l  LeftCollar   LeftShoulder LeftShoulder  clavicle_l  (none)        lCollar
+shoulder_l  LeftShoulder LeftArm      LeftArm       shoulder_l  arm_joint_L_1 lShldr
+elbow_l     LeftElbow    LeftForeArm  LeftForeArm   elbow_l     arm_joint_L_2 lForeArm
+wrist_l     LeftWrist    LeftHand     LeftHand      wrist_l     arm_joint_L_3 lHand
+hip_l       LeftHip      LeftUpLeg    LeftUpLeg     hip_l       leg_joint_L_1 lThigh
+knee_l      LeftKnee     LeftLeg      LeftLeg       knee_l      leg_joint_L_2 lShin
+ankle_l     LeftAnkle    LeftFoot     LeftFoot      ankle_l     leg_joint_L_3 lFoot
+toe_l       LeftToe      LeftToeBase  LeftToeBase   toe_l       leg_joint_L_5 (none)
+=========== ============ ============ ============= =========== ============= ============
 
-(right side: ``Right``/``R``/``_r``; ``cesium`` = the Khronos RiggedFigure/CesiumMan armature).
-``cmu-3dsmax`` is the 3dsMax-friendly CMU release (131_01, 94_01),
-``cmu-mobu`` the MotionBuilder-friendly one (01_01, 05_20; told from Mixamo by its ``LowerBack``).
-Everything else (CMU ``LHipJoint``, ``Chest``/``Spine``, ``Neck``/``Neck1``, hands and fingers) is unmapped.
-``joint_map {source: target}`` overrides the defaults (a ``null`` target unmaps a source joint); unknown
-names are errors. A skeleton is humanoid when these roles map: pelvis, spine or chest, head, both shoulders
-(upper arms), elbows (forearms), hips (thighs) and knees (shins), and its rest pose has the head above the
-pelvis (within 50 degrees of vertical) and the knees below the hips; otherwise (Fox) one-line error.
+The naming family (these columns, :data:`FAMILIES`) is only a label in the report. ``joint_map {source:
+target}`` overrides the structural pairs (a ``null`` target unmaps a source joint; unknown names are
+errors); where a skeleton's structure is not humanoid the override alone pairs it. A pair is humanoid when
+these roles map: pelvis, spine or chest, head, both shoulders (upper arms), elbows (forearms), hips
+(thighs) and knees (shins), and each rest pose has the head above the pelvis (within 50 degrees of
+vertical) and the knees below the hips; otherwise (Fox: four limb chains reach the ground) one-line error.
+
+**Detected, not assumed.** *Units*: the source's rest height (joint z extent) against the target's gives
+its length unit (``metres``, ``centimetres``, ``millimetres``, ``inches`` or CMU's ``0.0564 m``); root
+motion is scaled by the leg-length ratio either way, and a unit other than the target's is a ``warning:``.
+*Reference-pose frame*: a converter's added first frame (CMU MotionBuilder-friendly T-pose, Daz-friendly
+reference pose) is detected by :func:`reference_frame`: frame 0 is the zero-channel rest pose (median
+joint within 0.5 degrees of rest, the root's rotation too) and jumps to frame 1 by more than
+``max(10 degrees, 4 x`` the clip's 90th-percentile frame-to-frame change), and is dropped with a ``warning:``.
+Both are in :class:`RetargetReport`.
 
 **Rule.** World-space rotation deltas, after aligning rest bone directions. A mapped joint's rest bone
 direction ``u`` is the unit vector from the joint to its *primary child* (the next mapped joint down the
@@ -55,14 +65,16 @@ joint's local rotation is clamped to its limits, in hierarchy order, and its chi
 against the clamped parent (so they keep their world orientation). The report counts the frames where
 any joint exceeded a limit by more than ``tol_deg``.
 
-**Root motion.** ``k`` = target leg length / source leg length (leg length: pelvis-to-hip height plus
-thigh and shin lengths at rest, mean of both sides). The pelvis-mapped joint's world position is
-``x, y = rest_xy + k (p_src(t) - p_src(0))_xy`` (the motion starts on the target's rest spot) and
-``z = floor + k p_src_z(t)`` (the source floor is its world's ``z = 0``, as in CMU BVH and glTF files;
-``floor`` is the lowest rest vertex of the target).
+**Root motion.** ``k`` = target / source standing height: the pelvis's rest height above the mean of the
+two ankles (where either skeleton maps no ankles: leg length, pelvis-to-hip height plus thigh and shin, mean
+of both sides). The pelvis-mapped joint's world position is ``x, y = rest_xy + k (p_src(t) - p_src(0))_xy``
+(the motion starts on the target's rest spot) and ``z = floor + h_ankle + k (p_src_z(t) - a_src)``:
+``floor`` is the lowest rest vertex of the target, ``h_ankle`` its ankles' rest height above it, and
+``a_src`` the source's standing ankle level, the median over the clip of the lower ankle's height;
+so the source's own floor (``z = 0`` or not, a different ankle height) is not assumed (without ankles:
+``z = floor + k p_src_z(t)``, the source floor at its world's ``z = 0``).
 
-**Timing.** ``skip_first`` (default: on for CMU MotionBuilder-friendly BVH files, whose first frame is an
-artificial T-pose added by the converter) drops frame 0, then the source is resampled to ``fps`` with
+**Timing.** ``skip_first`` (default: detected, see above) drops frame 0, then the source is resampled to ``fps`` with
 :meth:`Clip.resample` (slerp; Euler angles of any range are fine since they become matrices first).
 """
 
@@ -78,6 +90,7 @@ import numpy as np
 from prt_torch.errors import PrtError, check
 from prt_torch.rig.character import Character
 from prt_torch.rig.clip import Clip
+from prt_torch.rig.joint_map import HEAD_UP_MAX_DEG, find_roles
 from prt_torch.rig.rotations import axis_angle_matrix
 from prt_torch.rig.skeleton import forward_kinematics
 
@@ -89,9 +102,13 @@ ROLES: tuple[str, ...] = _TORSO + tuple(f"{p}_{s}" for s, _, _ in SIDES for p in
 #: roles that must map (``spine|chest``: either)
 REQUIRED: tuple[str, ...] = ("pelvis", "spine|chest", "head", "shoulder_l", "elbow_l", "shoulder_r", "elbow_r",
                              "hip_l", "knee_l", "hip_r", "knee_r")
-#: CMU MotionBuilder-friendly BVH files start with an artificial T-pose frame
-SKIP_FIRST_FAMILIES = ("cmu-mobu",)
-HEAD_UP_MAX_DEG = 50.0
+#: length units a source may be in: name -> metres
+UNITS: dict[str, float] = {"metres": 1.0, "centimetres": 0.01, "millimetres": 0.001, "inches": 0.0254,
+                           "CMU units (0.0564 m)": 0.056444}
+#: a reference-pose frame 0 jumps to frame 1 by more than this (degrees) ...
+REFERENCE_JUMP_DEG = 10.0
+#: ... and by more than this many times the clip's 90th-percentile frame-to-frame change
+REFERENCE_JUMP_RATIO = 4.0
 
 
 def _family(torso: tuple[tuple[str, ...], ...], limb: dict[str, str]) -> dict[str, tuple[str, ...]]:
@@ -114,6 +131,10 @@ FAMILIES: dict[str, dict[str, tuple[str, ...]]] = {
                            "toe": "{S}Toe"}),
     "cmu-mobu": _family((("Hips",), ("LowerBack",), ("Spine1",), ("Neck",), ("Head",)), _MOBU_LIMBS),
     "mixamo": _family((("Hips",), ("Spine",), ("Spine2", "Spine1"), ("Neck",), ("Head",)), _MOBU_LIMBS),
+    "cmu-daz": {k: v for k, v in _family((("hip",), ("abdomen",), ("chest",), ("neck",), ("head",)),
+                                         {"clavicle": "{s}Collar", "shoulder": "{s}Shldr", "elbow": "{s}ForeArm",
+                                          "wrist": "{s}Hand", "hip": "{s}Thigh", "knee": "{s}Shin",
+                                          "ankle": "{s}Foot", "toe": ""}).items() if v != ("",)},
     "cesium": {k: v for k, v in _family(
         (("torso_joint_1",), ("torso_joint_2",), ("torso_joint_3",), ("neck_joint_1",), ("neck_joint_2",)),
         {"clavicle": "", "shoulder": "arm_joint_{s}_1", "elbow": "arm_joint_{s}_2", "wrist": "arm_joint_{s}_3",
@@ -128,7 +149,8 @@ def _key(name: str) -> str:
 
 
 def detect_roles(joint_names: list[str]) -> tuple[str, dict[str, int]]:
-    """``(family, {role: joint index})`` of the naming family matching the most roles (``""`` if none)."""
+    """``(family, {role: joint index})`` of the naming family matching the most roles (``""`` if none): a label
+    for the report only; the joint map itself is structural (:func:`prt_torch.rig.joint_map.find_roles`)."""
     index = {}
     for i, n in enumerate(joint_names):
         index.setdefault(_key(n), i)
@@ -194,7 +216,11 @@ def load_motion(path: str | os.PathLike[str], clip: str | None = None, fps: floa
 
 @dataclass
 class RetargetReport:
-    """What :func:`retarget` did: families, the joint map used, leg-length scale, timing, limit hits.
+    """What :func:`retarget` did: families, the joint map used, leg-length scale, timing, limit hits, and what
+    was detected: ``source_units`` (name) / ``source_height`` (rest joints' height, file units), ``facing``
+    (what gave each skeleton's facing direction: ``toes``, ``eyes``, ``names``, ``default -y``),
+    ``reference_jump_deg`` (frame 0 to 1 largest joint change), ``warnings`` (one-line ``warning: ...`` each,
+    for every fix-up: a dropped reference-pose frame, a unit other than the target's).
 
     ``frames_clamped``: frames where any joint exceeded its limit by more than ``tol_deg`` (and was
     clamped); ``clamped_frames`` / ``max_excess_deg``: per target joint, the frames over the limit and the
@@ -215,16 +241,22 @@ class RetargetReport:
     frames_clamped: int = 0
     clamped_frames: dict[str, int] = field(default_factory=dict)
     max_excess_deg: dict[str, float] = field(default_factory=dict)
+    source_units: str = "metres"
+    source_height: float = 0.0
+    facing: tuple[str, str] = ("", "")
+    reference_jump_deg: float = 0.0
+    warnings: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         """One line for logs."""
         worst = sorted(self.clamped_frames.items(), key=lambda kv: -kv[1])[:3]
         hits = ", ".join(f"{j} {n}" for j, n in worst)
-        skipped = " (T-pose frame skipped)" if self.skipped_first else ""
+        skipped = " (reference-pose frame skipped)" if self.skipped_first else ""
         return (f"{self.source} ({self.source_family or 'custom'}) -> {self.target}: {len(self.joint_map)} joints "
                 f"mapped, {self.frames} frames at {self.fps:g} fps{skipped}"
                 f", root scale {self.scale:.4g}; {self.frames_clamped} frames hit a joint limit"
-                f"{f' ({hits})' if hits else ''}")
+                f"{f' ({hits})' if hits else ''}; source in {self.source_units}"
+                + "".join(f"; {w}" for w in self.warnings))
 
 
 # -- small vectorised helpers ---------------------------------------------------------------------
@@ -283,13 +315,35 @@ class _Map:
     roles: dict[int, str]  # target joint -> role (when known)
     source_family: str
     target_family: str
+    facing: tuple[str, str] = ("", "")  # what gave each side's facing direction
+    notes: list[str] = field(default_factory=list)
+
+
+def _rest_positions(parents: np.ndarray, local: np.ndarray) -> np.ndarray:
+    return forward_kinematics(parents, local[None])[0][:, :3, 3]
 
 
 def build_joint_map(source: MotionSource, target: Character,
                     joint_map: Mapping[str, str | None] | None = None) -> _Map:
-    """Pair source and target joints by role, apply the ``joint_map`` override, check both are humanoid."""
-    s_fam, s_roles = detect_roles(source.joint_names)
-    t_fam, t_roles = detect_roles(target.joint_names)
+    """Pair source and target joints by structural role (:func:`prt_torch.rig.joint_map.find_roles`), apply the
+    ``joint_map`` override, check both are humanoid. A skeleton whose structure is not humanoid is a one-line
+    :class:`PrtError` naming why, unless ``joint_map`` is given (then the override alone pairs it)."""
+    s_rest = _rest_positions(source.parents, source.rest_local)
+    t_rest = _rest_positions(target.parents, target.bind_local)
+    found = []
+    for which, who, names, parents, rest in (("source", source.name, source.joint_names, source.parents, s_rest),
+                                             ("target", repr(target.name), target.joint_names, target.parents,
+                                              t_rest)):
+        try:
+            found.append(find_roles(list(names), parents, rest, f"{which} {who}"))
+        except PrtError as e:
+            if not joint_map:
+                raise PrtError(f"cannot retarget {source.name} onto {target.name!r}: not a humanoid pair: {e} "
+                               f"(or set joint_map)") from None
+            found.append(None)
+    s_found, t_found = found
+    s_roles = s_found.roles if s_found else {}
+    t_roles = t_found.roles if t_found else {}
     pairs = {t_roles[r]: s_roles[r] for r in ROLES if r in s_roles and r in t_roles}
     roles = {t: r for r, t in t_roles.items()}
     s_index = {n: i for i, n in enumerate(source.joint_names)}
@@ -310,16 +364,17 @@ def build_joint_map(source: MotionSource, target: Character,
         pairs[t] = s
         if t not in roles and s in s_role_of:
             roles[t] = s_role_of[s]
+        if t not in roles and not t_found:  # the target's roles come from the source's (structure or names)
+            fam_role = {i: r for r, i in detect_roles(source.joint_names)[1].items()}
+            if s in fam_role:
+                roles[t] = fam_role[s]
     mapped_roles = {roles[t] for t in pairs if t in roles}
     missing = [r for r in REQUIRED if not any(x in mapped_roles for x in r.split("|"))]
     if missing:
         raise PrtError(f"cannot retarget {source.name} onto {target.name!r}: not a humanoid pair, only "
                        f"{len(REQUIRED) - len(missing)} of the {len(REQUIRED)} required humanoid joints map "
-                       f"(missing: {', '.join(missing)}); quadrupeds such as Fox are not supported "
-                       f"(or set joint_map)")
+                       f"(missing: {', '.join(missing)}; or set joint_map)")
     by_role = {roles[t]: (t, s) for t, s in pairs.items() if t in roles}
-    s_rest = forward_kinematics(source.parents, source.rest_local[None])[0][:, :3, 3]
-    t_rest = forward_kinematics(target.parents, target.bind_local[None])[0][:, :3, 3]
     for which, who, rest, k in (("source", source.name, s_rest, 1), ("target", target.name, t_rest, 0)):
         up = rest[by_role["head"][k]] - rest[by_role["pelvis"][k]]
         ang = np.degrees(np.arccos(np.clip(up[2] / max(np.linalg.norm(up), 1e-12), -1, 1)))
@@ -329,7 +384,37 @@ def build_joint_map(source: MotionSource, target: Character,
             raise PrtError(f"cannot retarget: the {which} skeleton {who!r} is not an upright humanoid at rest "
                            f"(pelvis-to-head {ang:.0f} degrees from vertical{knees}"
                            f"; quadrupeds such as Fox are not supported)")
-    return _Map(pairs, roles, s_fam, t_fam)
+    facing = (s_found.facing_from if s_found else "joint_map", t_found.facing_from if t_found else "joint_map")
+    notes = [n for f in found if f for n in f.notes]
+    return _Map(pairs, roles, detect_roles(source.joint_names)[0], detect_roles(target.joint_names)[0], facing,
+                notes)
+
+
+def reference_frame(local: np.ndarray, rest_local: np.ndarray) -> tuple[bool, float]:
+    """Whether frame 0 of ``local (F, J, 4, 4)`` is a converter's reference pose (see the module docstring),
+    and its largest joint jump to frame 1 in degrees. ``rest_local (J, 4, 4)``: the zero-channel pose."""
+    if len(local) < 3:
+        return False, 0.0
+
+    def angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        r = np.swapaxes(_rot(a), -1, -2) @ _rot(b)
+        return np.degrees(np.arccos(np.clip((np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)))
+
+    at_rest = angle(local[0], rest_local)  # (J,)
+    jump = float(angle(local[0], local[1]).max())
+    steps = angle(local[1:min(len(local), 121) - 1], local[2:min(len(local), 121)]).max(axis=1)
+    typical = float(np.percentile(steps, 90))
+    is_ref = (float(np.median(at_rest[1:])) < 0.5 and float(at_rest[0]) < 0.5
+              and jump > max(REFERENCE_JUMP_DEG, REFERENCE_JUMP_RATIO * typical))
+    return is_ref, jump
+
+
+def detect_units(source_height: float, target_height_m: float) -> tuple[str, float]:
+    """``(unit name, metres per unit)``: the :data:`UNITS` entry nearest (in log) to the metres per source unit
+    that make the source's rest height (``source_height``, file units) the target's (``target_height_m``)."""
+    per = target_height_m / max(source_height, 1e-12)
+    name = min(UNITS, key=lambda u: abs(np.log(UNITS[u] / per)))
+    return name, UNITS[name]
 
 
 # -- retargeting ----------------------------------------------------------------------------------
@@ -399,12 +484,18 @@ def retarget(source: MotionSource, target: Character, fps: float | None = None,
     """Retarget ``source`` onto ``target`` -> ``(Clip (F, J, 4, 4) of the target at fps, RetargetReport)``.
 
     ``fps``: output rate (default: the source's); ``joint_map``: ``{source joint: target joint or None}``
-    overrides; ``skip_first``: drop the source's frame 0 (default: CMU MotionBuilder-friendly BVH only);
+    overrides; ``skip_first``: drop the source's frame 0 (default: when :func:`reference_frame` detects a
+    converter's reference pose there);
     ``tol_deg``: limit excess counted as a hit. See the module docstring for the rule.
     """
     m = build_joint_map(source, target, joint_map)
+    warnings: list[str] = [f"warning: {source.name}: {n}" for n in m.notes]
+    detected, jump = reference_frame(source.clip.local, source.rest_local)
     if skip_first is None:
-        skip_first = source.kind == "bvh" and m.source_family in SKIP_FIRST_FAMILIES
+        skip_first = detected
+        if detected:
+            warnings.append(f"warning: {source.name}: frame 1 is a converter's reference pose (the rest pose, "
+                            f"{jump:.0f} degrees from frame 2): skipped")
     clip = source.clip
     if skip_first:
         check(clip.num_frames > 1, f"{source.name}: only one frame, nothing left after skipping the T-pose frame")
@@ -425,7 +516,19 @@ def retarget(source: MotionSource, target: Character, fps: float | None = None,
     pairs = m.pairs
     by_role_t = {r: t for t, r in m.roles.items() if t in pairs}
     by_role_s = {r: pairs[t] for r, t in by_role_t.items()}
-    scale = _leg_length(pt0, by_role_t) / _leg_length(ps0, by_role_s)
+    ankles = all(f"ankle_{x}" in by_role_t for x in "lr")
+    if ankles:
+        stand_t, stand_s = (float(p[r["pelvis"], 2] - (p[r["ankle_l"], 2] + p[r["ankle_r"], 2]) / 2)
+                            for p, r in ((pt0, by_role_t), (ps0, by_role_s)))
+        check(stand_t > 0 and stand_s > 0, f"{source.name}: the pelvis is not above the ankles at rest")
+        scale = stand_t / stand_s
+    else:
+        scale = _leg_length(pt0, by_role_t) / _leg_length(ps0, by_role_s)
+    s_height, t_height = float(np.ptp(ps0[:, 2])), float(np.ptp(pt0[:, 2]))
+    units, _ = detect_units(s_height, t_height)
+    if units != "metres":
+        warnings.append(f"warning: {source.name}: lengths in {units} (rest height {s_height:.4g} vs the target's "
+                        f"{t_height:.3g} m): root motion scaled by {scale:.4g}")
     eps_t, eps_s = 1e-4 * _leg_length(pt0, by_role_t), 1e-4 * _leg_length(ps0, by_role_s)
 
     # mapped hierarchy: each mapped target joint's nearest mapped target ancestor
@@ -485,7 +588,12 @@ def retarget(source: MotionSource, target: Character, fps: float | None = None,
     floor = float(np.min(target.rest_vertices[:, 2]))
     p_des = np.empty((n, 3))
     p_des[:, :2] = pt0[pelvis, :2] + scale * (ps[:, sp, :2] - ps[0, sp, :2])
-    p_des[:, 2] = floor + scale * ps[:, sp, 2]
+    if ankles:
+        a_src = float(np.percentile(np.minimum(ps[:, by_role_s["ankle_l"], 2], ps[:, by_role_s["ankle_r"], 2]), 50))
+        h_ankle = (pt0[by_role_t["ankle_l"], 2] + pt0[by_role_t["ankle_r"], 2]) / 2 - floor
+        p_des[:, 2] = floor + h_ankle + scale * (ps[:, sp, 2] - a_src)
+    else:
+        p_des[:, 2] = floor + scale * ps[:, sp, 2]
 
     # back to local transforms, hierarchy order, with joint limits
     lim = target.joint_limits
@@ -527,7 +635,8 @@ def retarget(source: MotionSource, target: Character, fps: float | None = None,
         unmapped_source=[snames[i] for i in range(len(snames)) if i not in pairs.values()],
         unmapped_target=[tnames[i] for i in range(jt) if i not in pairs], scale=float(scale), fps=fps, frames=n,
         skipped_first=bool(skip_first), frames_clamped=int(clamped.sum()), clamped_frames=counts,
-        max_excess_deg=excess_max)
+        max_excess_deg=excess_max, source_units=units, source_height=s_height, facing=m.facing,
+        reference_jump_deg=jump, warnings=warnings)
     return out, report
 
 

@@ -179,7 +179,12 @@ def test_bone_directions_and_root_match_independent_fk(bvh: tuple[Path, np.ndarr
     p_src = ps[:, 0]
     rest_xy = np.linalg.inv(target.inverse_bind[0])[:2, 3]
     np.testing.assert_allclose(pt[:, 0, :2], rest_xy + 0.05 * (p_src[:, :2] - p_src[0, :2]), atol=1e-9)
-    np.testing.assert_allclose(pt[:, 0, 2], 0.05 * p_src[:, 2], atol=1e-9)
+    # height: the source's standing ankle level (median of the lower ankle) lands on the target's rest ankle
+    # height above its floor (the lowest rest vertex, z = 0 here)
+    a_src = np.median(np.minimum(ps[:, NAMES.index("LeftAnkle"), 2], ps[:, NAMES.index("RightAnkle"), 2]))
+    rest_world = np.linalg.inv(target.inverse_bind)
+    h_ankle = (rest_world[tn.index("ankle_l"), 2, 3] + rest_world[tn.index("ankle_r"), 2, 3]) / 2
+    np.testing.assert_allclose(pt[:, 0, 2], h_ankle + 0.05 * (p_src[:, 2] - a_src), atol=1e-9)
 
 
 def test_resampling_and_unwrapped_angles(bvh: tuple[Path, np.ndarray, np.ndarray]) -> None:
