@@ -42,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--site", default=None, help="an existing `prt web` site of RUN to use (default: written to a "
                                                      "temporary folder)")
     parser.add_argument("--no-peaks", action="store_true", help="the peak lights off (the SH path only)")
+    parser.add_argument("--decode", choices=("gpu", "cpu"), default="gpu",
+                        help="gpu: the latent graph + the GPU decode (default); cpu: the whole visibility graph in "
+                             "wasm, the coefficients uploaded (what an export without latent.onnx plays)")
     parser.add_argument("--chromium", default=None, help="Chromium executable (default: found on PATH)")
     parser.add_argument("--json", action="store_true", help="print the JSON only")
 
@@ -58,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     if args.site is not None:
         V.input_dir(args.site, "--site")
-        out = bench_site(args.site, args.characters, args.frames, not args.no_peaks, args.chromium)
+        out = bench_site(args.site, args.characters, args.frames, not args.no_peaks, args.chromium, args.decode)
     else:
         from prt_torch.web.site import write_site
 
@@ -66,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
             if not args.json:
                 console.print(f"writing the site of {args.run} ...")
             write_site(args.run, tmp, material_rpo=False)
-            out = bench_site(tmp, args.characters, args.frames, not args.no_peaks, args.chromium)
+            out = bench_site(tmp, args.characters, args.frames, not args.no_peaks, args.chromium, args.decode)
     out["run"] = str(args.run)
     if not args.json:
         s = out["steps"]
@@ -80,8 +83,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def bench_site(site: str | Path, characters: int, frames: int, peaks: bool = True,
-               chromium: str | None = None) -> dict[str, Any]:
+def bench_site(site: str | Path, characters: int, frames: int, peaks: bool = True, chromium: str | None = None,
+               decode: str = "gpu") -> dict[str, Any]:
     """The page of ``site`` with ``characters`` characters, ``frames`` timed steps: ``{"characters", "fps",
     "steps": {"posing", "inference", "peaks", "draw"} (median ms), "step_ms", "renderer", "software_gl", "decode",
     ...}`` (module doc)."""
@@ -91,7 +94,8 @@ def bench_site(site: str | Path, characters: int, frames: int, peaks: bool = Tru
 
     m = read_manifest(site)
     clip = m["clips"][0]
-    with served_page(site, chromium, query=f"?paused&characters={characters}") as ps:
+    query = f"?paused&characters={characters}" + ("&decode=cpu" if decode == "cpu" else "")
+    with served_page(site, chromium, query=query) as ps:
         check(ps.wait_ready(), f"the page failed to start: {ps.page.evaluate('window.prt.error')}")
         ps.page.evaluate("s => window.prt.setState(s)", {"clip": 0, "frame": 0, "playing": False, "paused": True,
                                                          "syncGpu": True, "peaks": peaks, "unshadowed": False})

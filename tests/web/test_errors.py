@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from prt_torch.web.site import ASSETS, DATA, MANIFEST, MODEL, PEAKS_MODEL, SITE_FORMAT
+from prt_torch.web.site import ASSETS, DATA, LATENT_MODEL, MANIFEST, MODEL, PEAKS_MODEL, SITE_FORMAT
 
 
 def _site_copy(site: Path, dst: Path) -> Path:
@@ -45,18 +45,22 @@ def _flip_byte(p: Path) -> None:
     p.write_bytes(bytes(raw))
 
 
-def _stale_model(site: Path, raw: bytes) -> None:
+def _stale_model(site: Path, raw: bytes, file: str = MODEL, key: str = "model") -> None:
     """A model that is not an ONNX graph, with a manifest that agrees with it (size and sha256)."""
-    (site / ASSETS / MODEL).write_bytes(raw)
+    (site / ASSETS / file).write_bytes(raw)
     p = site / ASSETS / MANIFEST
     m = json.loads(p.read_text())
-    m["model"].update(bytes=len(raw), sha256=hashlib.sha256(raw).hexdigest())
+    m[key].update(bytes=len(raw), sha256=hashlib.sha256(raw).hexdigest())
     p.write_text(json.dumps(m))
 
 
 WASM = "vendor/ort/ort-wasm-simd-threaded.wasm"
 
-#: damage of the site folder -> words the one error shown must contain
+#: the page that plays the whole visibility graph per frame (an export without latent.onnx plays it too); the
+#: default page of the tiny run decodes on the GPU from latent.onnx and loads the visibility graph only on demand
+VIS_PAGE = "?decode=cpu"
+
+#: damage of the site folder -> words the one error shown must contain (, the page's query)
 CASES = {
     "manifest_missing": (lambda s: (s / ASSETS / MANIFEST).unlink(), ["manifest", "missing", "404"]),
     "manifest_malformed": (lambda s: (s / ASSETS / MANIFEST).write_text('{"format": "prt_torch.web/1", '),
@@ -65,10 +69,15 @@ CASES = {
                       ["manifest", '"prt_torch.web/2"', f'"{SITE_FORMAT}"', "re-run `prt web`"]),
     "data_truncated": (lambda s: _truncate(s / ASSETS / DATA), [DATA, "bytes"]),
     "data_missing": (lambda s: (s / ASSETS / DATA).unlink(), ["character data", DATA, "missing", "404"]),
-    "model_missing": (lambda s: (s / ASSETS / MODEL).unlink(), ["visibility model", "missing"]),
-    "model_truncated": (lambda s: _truncate(s / ASSETS / MODEL), ["visibility model", MODEL, "truncated"]),
-    "model_corrupt": (lambda s: _flip_byte(s / ASSETS / MODEL), ["visibility model", MODEL, "sha256"]),
-    "model_garbage": (lambda s: _stale_model(s, b"not an onnx graph" * 10), ["visibility model", "onnxruntime"]),
+    "model_missing": (lambda s: (s / ASSETS / MODEL).unlink(), ["visibility model", "missing"], VIS_PAGE),
+    "model_truncated": (lambda s: _truncate(s / ASSETS / MODEL), ["visibility model", MODEL, "truncated"], VIS_PAGE),
+    "model_corrupt": (lambda s: _flip_byte(s / ASSETS / MODEL), ["visibility model", MODEL, "sha256"], VIS_PAGE),
+    "model_garbage": (lambda s: _stale_model(s, b"not an onnx graph" * 10), ["visibility model", "onnxruntime"],
+                      VIS_PAGE),
+    "latent_missing": (lambda s: (s / ASSETS / LATENT_MODEL).unlink(), ["latent model", LATENT_MODEL, "missing"]),
+    "latent_corrupt": (lambda s: _flip_byte(s / ASSETS / LATENT_MODEL), ["latent model", LATENT_MODEL, "sha256"]),
+    "latent_garbage": (lambda s: _stale_model(s, b"not an onnx graph" * 10, LATENT_MODEL, "decode"),
+                       ["latent model", "onnxruntime"]),
     "peak_model_missing": (lambda s: (s / ASSETS / PEAKS_MODEL).unlink(),
                            ["peak visibility model", PEAKS_MODEL, "missing", "404"]),
     "peak_model_corrupt": (lambda s: _flip_byte(s / ASSETS / PEAKS_MODEL), ["peak visibility model", "sha256"]),
@@ -83,11 +92,11 @@ def test_broken_asset_shows_a_readable_error(case: str, checked_site: tuple[Path
                                              tmp_path: Path) -> None:
     from prt_torch.web.serve import SiteServer
 
-    damage, words = CASES[case]
+    damage, words, *query = CASES[case]
     site = _site_copy(checked_site[0], tmp_path / "site")
     damage(site)
     with SiteServer(site) as srv:
-        ps = browser.open(srv.url)
+        ps = browser.open(srv.url + (query[0] if query else ""))
         try:
             assert ps.wait_ready(timeout_ms=30000) is False, "the page started on a broken asset"
             alerts = ps.page.locator("[role=alert]:visible")

@@ -285,3 +285,31 @@ def test_bench_web_prints_its_keys(tiny_run: Path, checked_site: tuple[Path, dic
     assert out["characters"] == 2 and out["decode"] == "gpu"
     assert set(out["steps"]) >= {"posing", "inference", "draw"} and all(v >= 0 for v in out["steps"].values())
     assert out["fps"] > 0 and isinstance(out["renderer"], str) and isinstance(out["software_gl"], bool)
+
+
+def test_visibility_graph_path_still_plays(browser: Any, site_url: str, page: Any, player: Any) -> None:
+    """``?decode=cpu`` (what an export without ``latent.onnx`` plays: the whole visibility graph in onnxruntime-web,
+    the coefficients uploaded per vertex) draws the frame the GPU decode draws, both the Python player's."""
+    from prt_torch.scoring.images import ImageRenderer, player_camera
+    from prt_torch.scoring.statistics import image_psnr
+    from prt_torch.web.site import site_local
+
+    settings = {**SKY, "clip": "squat", "frame": 5, "brdf": "phong", "lightAngle": 0.9}
+    gpu, _ = page.frame(settings)
+    ps = browser.open(site_url + "?paused&decode=cpu")
+    try:
+        assert ps.wait_ready(), ps.page.evaluate("window.prt.error")
+        assert ps.page.evaluate("window.prt.info()")["decode"] == "visibility graph"
+        cpu, _ = ps.frame(settings)
+        assert ps.errors == []
+    finally:
+        ps.page.close()
+    player.set_brdf("phong")
+    player.light_angle = 0.0
+    player.rotate_light(0.9)
+    state = player.pose(site_local(player.character, "squat", 5))
+    ref = player.render_frame(state, player.shade(state))
+    ch = player.character
+    with ImageRenderer(ch.rest_vertices, ch.faces, player_camera(ch, (480, 640))) as r:
+        mask = r.mask(state.positions_vx3(0))
+    assert image_psnr(gpu, ref, mask) >= 35.0 and image_psnr(cpu, ref, mask) >= 35.0
