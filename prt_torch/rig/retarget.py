@@ -42,7 +42,9 @@ motion is scaled by the leg-length ratio either way, and a unit other than the t
 reference pose) is detected by :func:`reference_frame`: frame 0 is the zero-channel rest pose (median
 joint within 0.5 degrees of rest, the root's rotation too) and jumps to frame 1 by more than
 ``max(10 degrees, 4 x`` the clip's 90th-percentile frame-to-frame change), and is dropped with a ``warning:``.
-Both are in :class:`RetargetReport`.
+*Frame time*: where the clip has flight phases, gravity gives the frame rate (:func:`flight_frame_rate`);
+a header rate off by more than 1.5x (16_01.bvh says 30 fps for 120 fps data) is replaced, with a
+``warning:``. All are in :class:`RetargetReport`.
 
 **Rule.** World-space rotation deltas, after aligning rest bone directions. A mapped joint's rest bone
 direction ``u`` is the unit vector from the joint to its *primary child* (the next mapped joint down the
@@ -105,6 +107,8 @@ REQUIRED: tuple[str, ...] = ("pelvis", "spine|chest", "head", "shoulder_l", "elb
 #: length units a source may be in: name -> metres
 UNITS: dict[str, float] = {"metres": 1.0, "centimetres": 0.01, "millimetres": 0.001, "inches": 0.0254,
                            "CMU units (0.0564 m)": 0.056444}
+#: standard frame rates a flight-phase estimate is rounded to
+FRAME_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 100.0, 120.0, 240.0)
 #: a reference-pose frame 0 jumps to frame 1 by more than this (degrees) ...
 REFERENCE_JUMP_DEG = 10.0
 #: ... and by more than this many times the clip's 90th-percentile frame-to-frame change
@@ -409,6 +413,43 @@ def reference_frame(local: np.ndarray, rest_local: np.ndarray) -> tuple[bool, fl
     return is_ref, jump
 
 
+def flight_frame_rate(source: MotionSource, by_role: Mapping[str, int], unit_m: float) -> float | None:
+    """The frame rate (a :data:`FRAME_RATES` entry) that makes the source's flight phases fall at ``g``, or ``None``.
+
+    Flight: runs of at least 10 frames with both ankles above their median level (the lower ankle's) by 0.1
+    of the rest standing height; on each, a parabola fit of the pelvis height (``R^2 > 0.99``, curving down)
+    gives ``a`` (units / frame^2) and ``dt = sqrt(-a unit_m / 9.81)``; the frames-weighted median ``dt``
+    rounded to the nearest standard rate. Needs the pelvis and both ankles mapped.
+    """
+    if not all(r in by_role for r in ("pelvis", "ankle_l", "ankle_r")) or source.clip.num_frames < 10:
+        return None
+    pel, al, ar = by_role["pelvis"], by_role["ankle_l"], by_role["ankle_r"]
+    rest = _rest_positions(source.parents, source.rest_local)
+    stand = rest[pel, 2] - (rest[al, 2] + rest[ar, 2]) / 2
+    w = forward_kinematics(source.parents, source.clip.local)[..., :3, 3]
+    low = np.minimum(w[:, al, 2], w[:, ar, 2])
+    air = np.concatenate([[False], low > np.median(low) + 0.1 * stand, [False]])
+    edges = np.flatnonzero(np.diff(air.astype(int)))
+    dts, weights = [], []
+    for i, j in zip(edges[::2], edges[1::2], strict=True):
+        if j - i < 10:
+            continue
+        z = w[i:j, pel, 2]
+        t = np.arange(j - i, dtype=float)
+        coef = np.polyfit(t, z, 2)
+        res = z - np.polyval(coef, t)
+        r2 = 1.0 - float(res @ res) / max(float(np.sum((z - z.mean()) ** 2)), 1e-300)
+        if coef[0] < 0 and r2 > 0.99:  # free fall is a clean parabola (climbing, hanging: not)
+            dts.append(np.sqrt(-2.0 * coef[0] * unit_m / 9.81))
+            weights.append(j - i)
+    if not dts:
+        return None
+    order = np.argsort(dts)
+    cum = np.cumsum(np.asarray(weights)[order])
+    dt = float(np.asarray(dts)[order][np.searchsorted(cum, cum[-1] / 2)])
+    return min(FRAME_RATES, key=lambda f: abs(np.log(f * dt)))
+
+
 def detect_units(source_height: float, target_height_m: float) -> tuple[str, float]:
     """``(unit name, metres per unit)``: the :data:`UNITS` entry nearest (in log) to the metres per source unit
     that make the source's rest height (``source_height``, file units) the target's (``target_height_m``)."""
@@ -496,7 +537,16 @@ def retarget(source: MotionSource, target: Character, fps: float | None = None,
         if detected:
             warnings.append(f"warning: {source.name}: frame 1 is a converter's reference pose (the rest pose, "
                             f"{jump:.0f} degrees from frame 2): skipped")
+    s_height = float(np.ptp(_rest_positions(source.parents, source.rest_local)[:, 2]))
+    t_height = float(np.ptp(_rest_positions(target.parents, target.bind_local)[:, 2]))
+    units, unit_m = detect_units(s_height, t_height)
     clip = source.clip
+    s_by_role = {r: m.pairs[t] for t, r in m.roles.items() if t in m.pairs}
+    rate = flight_frame_rate(source, s_by_role, unit_m)
+    if rate is not None and not 1 / 1.5 < rate / clip.fps < 1.5:
+        warnings.append(f"warning: {source.name}: the header's {clip.fps:.4g} fps does not fit the flight phases' "
+                        f"gravity ({rate:.4g} fps): played at {rate:.4g} fps")
+        clip = Clip(clip.name, rate, clip.local)
     if skip_first:
         check(clip.num_frames > 1, f"{source.name}: only one frame, nothing left after skipping the T-pose frame")
         clip = Clip(clip.name, clip.fps, clip.local[1:])
@@ -524,8 +574,6 @@ def retarget(source: MotionSource, target: Character, fps: float | None = None,
         scale = stand_t / stand_s
     else:
         scale = _leg_length(pt0, by_role_t) / _leg_length(ps0, by_role_s)
-    s_height, t_height = float(np.ptp(ps0[:, 2])), float(np.ptp(pt0[:, 2]))
-    units, _ = detect_units(s_height, t_height)
     if units != "metres":
         warnings.append(f"warning: {source.name}: lengths in {units} (rest height {s_height:.4g} vs the target's "
                         f"{t_height:.3g} m): root motion scaled by {scale:.4g}")

@@ -112,6 +112,10 @@ def test_every_cmu_clip_maps_and_retargets(shared_data: Path, name: str) -> None
     assert rep.skipped_first == (name in DAZ + MOBU)
     assert any("reference pose" in w for w in rep.warnings) == rep.skipped_first
     assert rep.source_units == ("centimetres" if name in DAZ else "CMU units (0.0564 m)")
+    # SOURCES.md: every clip is 120 fps data; 16_01's header says 30 fps (gravity in its jumps says 120)
+    assert any("gravity" in w for w in rep.warnings) == (name == "16_01")
+    n_src = src.clip.num_frames - rep.skipped_first
+    assert abs(clip.num_frames - (int(np.floor((n_src - 1) / 120.0 * 30.0)) + 1)) <= 1
     assert all(w.startswith("warning: ") and "\n" not in w for w in rep.warnings)
     _plausible(ch, clip.local, src, roles)
 
