@@ -30,6 +30,10 @@ Rule (``H`` = the rest joints' height extent):
   most nearly equal and straight (a joint off the segment's line is a real joint, one on it a twist
   helper): score ``|a - b| / (a + b) + 5 (straightness excess)``. The *clavicle* is the arm joint before
   the shoulder. Fingers, eyes, twist and extra joints (CMU ``LHipJoint``, Daz ``lButtock``) stay unmapped.
+
+Limitation: twist helpers as leaves (siblings of the next limb joint, as in Unreal-style rigs) are ignored,
+but a twist joint *inside* a limb chain (``elbow -> twist -> wrist``) at mid-bone can win the pairing (its
+two halves are perfectly equal and straight): map such rigs with ``joint_map``.
 """
 
 from __future__ import annotations

@@ -205,3 +205,42 @@ def test_fox_is_refused_in_one_line(shared_data: Path) -> None:
     with pytest.raises(PrtError) as e:
         retarget(fox, make_character(0.05))
     assert "humanoid" in str(e.value) and "4 limb chains" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_extra_joints_stay_unmapped() -> None:
+    """The built-in skeleton plus a head-top end leaf, eyes, forearm and thigh twist leaves (siblings of the
+    wrist / knee at mid-bone): the roles stay the built-in joints (an independent reference: its names)."""
+    from prt_torch.rig.builtin import make_character
+
+    ch = make_character(0.05, fps=10.0)
+    names, parents = list(ch.joint_names), [int(p) for p in ch.parents]
+    world = np.linalg.inv(ch.inverse_bind)
+    pos = [w[:3, 3] for w in world]
+    i = {n: k for k, n in enumerate(names)}
+
+    def add(name: str, parent: int, p: np.ndarray) -> int:
+        names.append(name)
+        parents.append(parent)
+        pos.append(np.asarray(p, float))
+        return len(names) - 1
+
+    head = pos[i["head"]]
+    add("HeadTop_End", i["head"], head + [0.0, 0.0, 0.2])
+    add("eye.L", i["head"], head + [0.03, -0.08, 0.05])
+    add("eye.R", i["head"], head + [-0.03, -0.08, 0.05])
+    add("thigh_twist_l", i["hip_l"], (pos[i["hip_l"]] + pos[i["knee_l"]]) / 2)
+    add("forearm_twist_l", i["elbow_l"], (pos[i["elbow_l"]] + pos[i["wrist_l"]]) / 2)
+    order = np.argsort([len(_ancestors(parents, j)) for j in range(len(names))], kind="stable")
+    new_of = {int(o): n for n, o in enumerate(order)}
+    par = np.array([-1 if parents[o] < 0 else new_of[parents[o]] for o in order])
+    rest = np.array([pos[o] for o in order])
+    roles = find_roles([names[o] for o in order], par, rest, "extended").roles
+    assert {r: names[order[j]] for r, j in roles.items()} == {r: r for r in ROLES}
+
+
+def _ancestors(parents: list[int], j: int) -> list[int]:
+    out = []
+    while parents[j] >= 0:
+        j = parents[j]
+        out.append(j)
+    return out
