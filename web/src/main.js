@@ -263,7 +263,8 @@ class App {
     this.sizes = sizes;
     this.glsl = glsl;
     this.matrixForm = new URLSearchParams(location.search).get('form') === 'matrix';
-    this.material = makeMaterial(glsl, sizes, this.layout, m.gaunt, this.matrixForm, { decode: this.decodeOptions });
+    this.material = makeMaterial(glsl, sizes, this.layout, m.gaunt, this.matrixForm, { decode: this.decodeOptions,
+      fromRadiance: true });
     const u = this.material.uniforms;
     u.u_state.value = this.stateTex;
     u.u_nVertices.value = this.V;
@@ -306,12 +307,60 @@ class App {
       if (rows) g.setAttribute('a_decode', new THREE.BufferAttribute(rows, 2));
       g.setIndex(new THREE.BufferAttribute(faces, 1));
     }
+    this.initShadingPass();
     this.mesh = new THREE.Mesh(g, this.material);
     this.mesh.frustumCulled = false; // positions come from the state texture
     this.scene.add(this.mesh);
     this.applyBrdf();
     this.applyLight();
     this.applyCamera();
+  }
+
+  // the frame's first pass: every character's vertices decoded + shaded once, one point each, into a float target
+  // (RADIANCE_WIDTH x ceil(K V / RADIANCE_WIDTH)) the mesh pass reads
+  initShadingPass() {
+    const n = this.nChars * this.V;
+    this.shadeRows = Math.ceil(n / RADIANCE_WIDTH);
+    const mat = makeMaterial(this.glsl, this.sizes, this.layout, this.m.gaunt, this.matrixForm,
+      { radianceOut: true, uniforms: this.material.uniforms, decode: this.decodeOptions });
+    const g = new THREE.InstancedBufferGeometry();
+    g.instanceCount = this.nChars;
+    g.setAttribute('a_instance', new THREE.InstancedBufferAttribute(Float32Array.from({ length: this.nChars }, (_, i) => i), 1));
+    const vid = new Float32Array(this.V);
+    for (let v = 0; v < this.V; v++) vid[v] = v;
+    g.setAttribute('position', new THREE.BufferAttribute(this.a.rest_vertices, 3));
+    g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
+    g.setAttribute('a_uv', new THREE.BufferAttribute(new Float32Array(2 * this.V), 2));
+    g.setAttribute('a_base', new THREE.BufferAttribute(this.a.base_color, 3));
+    if (this.decode) g.setAttribute('a_decode', new THREE.BufferAttribute(this.a[this.decode.rows], 2));
+    const pts = new THREE.Points(g, mat);
+    pts.frustumCulled = false;
+    this.shadeScene = new THREE.Scene();
+    this.shadeScene.add(pts);
+    this.shadeTarget = new THREE.WebGLRenderTarget(RADIANCE_WIDTH, this.shadeRows, { type: THREE.FloatType,
+      format: THREE.RGBAFormat, minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, depthBuffer: false });
+    this.material.uniforms.u_radianceTex.value = this.shadeTarget.texture;
+  }
+
+  // the shading pass (decode + shade every vertex once) into its target
+  shadePass() {
+    const r = this.renderer;
+    this.material.uniforms.u_radianceRows.value = this.shadeRows;
+    const clear = new THREE.Color();
+    r.getClearColor(clear);
+    const alpha = r.getClearAlpha();
+    r.setRenderTarget(this.shadeTarget);
+    r.setClearColor(new THREE.Color(0, 0, 0), 0);
+    r.clear();
+    r.render(this.shadeScene, this.camera);
+    r.setRenderTarget(null);
+    r.setClearColor(clear, alpha);
+  }
+
+  // draw the frame: the shading pass, then the mesh on the canvas
+  draw() {
+    this.shadePass();
+    this.renderer.render(this.scene, this.camera);
   }
 
   get clipInfo() { return this.m.clips[this.clip]; }
@@ -488,7 +537,7 @@ class App {
     const u = this.material.uniforms;
     u.u_unshadowed.value = this.unshadowed;
     u.u_perPixel.value = this.perPixel && this.hasTexture;
-    this.renderer.render(this.scene, this.camera);
+    this.draw();
     if (this.syncGpu) { // wait for the draw itself, not just its submission: read one pixel back
       const gl = this.renderer.getContext();
       gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, this.onePixel || (this.onePixel = new Uint8Array(4)));
@@ -503,56 +552,58 @@ class App {
 
   // per-vertex radiance (V*3, before the base colour) of the state texture as it is: the same vertex shader, one
   // point per vertex into a float target
-  // (fromVisibility: of the visInput state, the coefficients given, not decoded; instance: which character)
+  // (fromVisibility: of the visInput state, the coefficients given, not decoded, character 0; else the shading
+  // pass of the state as it is, character `instance`'s vertices)
   radiance(fromVisibility = false, instance = 0) {
-    const key = fromVisibility && this.decode ? 'vis' : 'own';
-    this.radianceScenes = this.radianceScenes || {};
-    if (!this.radianceScenes[key]) {
-      const rows = Math.ceil(this.V / RADIANCE_WIDTH);
-      const own = key === 'own';
-      const uniforms = own ? this.material.uniforms : { ...this.material.uniforms, u_state: { value: this.visInput.stateTex } };
-      const mat = makeMaterial(this.glsl, this.sizes, own ? this.layout : this.visInput.layout, this.m.gaunt,
-        this.matrixForm, { radianceOut: true, uniforms, decode: own ? this.decodeOptions : null });
+    need(Number.isInteger(instance) && instance >= 0 && instance < (fromVisibility ? 1 : this.nChars), `no character ${instance}`);
+    const r = this.renderer, V = this.V;
+    const u = this.material.uniforms;
+    u.u_unshadowed.value = this.unshadowed;
+    if (!(fromVisibility && this.decode)) {
+      this.shadePass();
+      const px = new Float32Array(RADIANCE_WIDTH * this.shadeRows * 4);
+      r.readRenderTargetPixels(this.shadeTarget, 0, 0, RADIANCE_WIDTH, this.shadeRows, px);
+      const out = new Float32Array(3 * V);
+      for (let v = 0; v < V; v++) for (let e = 0; e < 3; e++) out[3 * v + e] = px[4 * (instance * V + v) + e];
+      return out;
+    }
+    if (!this.visScene) {
+      const rows = Math.ceil(V / RADIANCE_WIDTH);
+      const uniforms = { ...this.material.uniforms, u_state: { value: this.visInput.stateTex } };
+      const mat = makeMaterial(this.glsl, this.sizes, this.visInput.layout, this.m.gaunt, this.matrixForm,
+        { radianceOut: true, uniforms });
       const g = new THREE.BufferGeometry();
-      const vid = new Float32Array(this.V);
-      for (let v = 0; v < this.V; v++) vid[v] = v;
+      const vid = new Float32Array(V);
+      for (let v = 0; v < V; v++) vid[v] = v;
       g.setAttribute('position', new THREE.BufferAttribute(this.a.rest_vertices, 3));
       g.setAttribute('a_vid', new THREE.BufferAttribute(vid, 1));
-      g.setAttribute('a_uv', new THREE.BufferAttribute(new Float32Array(2 * this.V), 2));
+      g.setAttribute('a_uv', new THREE.BufferAttribute(new Float32Array(2 * V), 2));
       g.setAttribute('a_base', new THREE.BufferAttribute(this.a.base_color, 3));
-      g.setAttribute('a_instance', new THREE.BufferAttribute(new Float32Array(this.V), 1)); // the character read
-      if (this.decode) g.setAttribute('a_decode', new THREE.BufferAttribute(this.a[this.decode.rows], 2));
+      g.setAttribute('a_instance', new THREE.BufferAttribute(new Float32Array(V), 1)); // character 0
       const pts = new THREE.Points(g, mat);
       pts.frustumCulled = false;
-      this.radianceScenes[key] = new THREE.Scene();
-      this.radianceScenes[key].add(pts);
-      this.radianceTarget = this.radianceTarget || new THREE.WebGLRenderTarget(RADIANCE_WIDTH, rows, { type: THREE.FloatType,
+      this.visScene = new THREE.Scene();
+      this.visScene.add(pts);
+      this.visTarget = new THREE.WebGLRenderTarget(RADIANCE_WIDTH, rows, { type: THREE.FloatType,
         format: THREE.RGBAFormat, minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, depthBuffer: false });
-      this.radianceRows = rows;
+      this.visRows = rows;
     }
-    const u = this.material.uniforms;
-    u.u_radianceRows.value = this.radianceRows;
-    u.u_unshadowed.value = this.unshadowed;
-    const r = this.renderer;
+    u.u_radianceRows.value = this.visRows;
     const clear = new THREE.Color();
     r.getClearColor(clear);
     const alpha = r.getClearAlpha();
-    r.setRenderTarget(this.radianceTarget);
+    r.setRenderTarget(this.visTarget);
     r.setClearColor(new THREE.Color(0, 0, 0), 0);
     r.clear();
-    const inst = this.radianceScenes[key].children[0].geometry.getAttribute('a_instance');
-    need(Number.isInteger(instance) && instance >= 0 && instance < (key === 'vis' ? 1 : this.nChars), `no character ${instance}`);
-    if (inst.array[0] !== instance) { inst.array.fill(instance); inst.needsUpdate = true; }
-    r.render(this.radianceScenes[key], this.camera);
-    const px = new Float32Array(RADIANCE_WIDTH * this.radianceRows * 4);
-    r.readRenderTargetPixels(this.radianceTarget, 0, 0, RADIANCE_WIDTH, this.radianceRows, px);
+    r.render(this.visScene, this.camera);
+    const px = new Float32Array(RADIANCE_WIDTH * this.visRows * 4);
+    r.readRenderTargetPixels(this.visTarget, 0, 0, RADIANCE_WIDTH, this.visRows, px);
     r.setRenderTarget(null);
     r.setClearColor(clear, alpha);
-    const out = new Float32Array(3 * this.V);
-    for (let v = 0; v < this.V; v++) for (let e = 0; e < 3; e++) out[3 * v + e] = px[4 * v + e];
+    const out = new Float32Array(3 * V);
+    for (let v = 0; v < V; v++) for (let e = 0; e < 3; e++) out[3 * v + e] = px[4 * v + e];
     return out;
   }
-
   readPixels() {
     const gl = this.renderer.getContext();
     const w = gl.drawingBufferWidth, h = gl.drawingBufferHeight;
@@ -750,7 +801,7 @@ window.prt = {
     return Array.from(app.radiance(fromVis));
   },
   // per-vertex radiance (V*3) of character c as last rendered (a crowd page)
-  radianceOf(c) { return Array.from(this.app.radiance(false, c)); },
+  radianceOf(c) { return Array.from(this.app.radiance(false, c)); }, // (re-shaded from the state as it is)
   // the crowd: the camera's eye, each character's grid offset (K*3) and pose {clip, frame} now, and the last z the
   // latent graph returned {data (K*Gz*Kz), dims} (GPU decode; else null)
   crowd() {

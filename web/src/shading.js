@@ -19,8 +19,11 @@
 //     vis = mean + sum_{k < k_used} z[row, k] basis_k          (prtDecodeVisibility)
 // and shades as before.
 //
-// makeMaterial(..., {radianceOut: true}) is the same vertex shader drawing vertex v as one point at pixel
-// (v % RADIANCE_WIDTH, v / RADIANCE_WIDTH) of a float target, its radiance before the base colour (window.prt.radiance).
+// A frame is two passes: makeMaterial(..., {radianceOut: true}) decodes and shades each vertex once, drawing item i
+// (instance * V + vertex) as one point at pixel (i % RADIANCE_WIDTH, i / RADIANCE_WIDTH) of a float target, its
+// radiance before the base colour (also window.prt.radiance's readback); makeMaterial(..., {fromRadiance: true})
+// then draws the mesh, each corner fetching its vertex's radiance from that target (a vertex shared by 6 triangles
+// is shaded once, not once per corner: software GL has no post-transform cache to lean on).
 import * as THREE from 'three';
 
 export const TEXTURE_WIDTH = 4096;
@@ -71,6 +74,7 @@ uniform int u_brdfKind;
 uniform vec4 u_brdfParams;
 uniform int u_radianceRows;
 uniform int u_nVertices;
+uniform highp sampler2D u_radianceTex;
 #ifdef PRT_GPU_DECODE
 uniform highp sampler2D u_basis;
 uniform highp sampler2D u_latent;
@@ -121,6 +125,16 @@ void main() {
   int vid = int(a_vid + 0.5);
   int inst = int(a_instance + 0.5);
   int item = inst * u_nVertices + vid;
+#ifdef PRT_FROM_RADIANCE
+  // the frame's second pass: the radiance the first (one point per vertex) shaded, fetched per corner
+  vec3 pos = stateTexel(item, 0).xyz;
+  vec3 L = texelFetch(u_radianceTex, ivec2(item % RADIANCE_WIDTH, item / RADIANCE_WIDTH), 0).rgb;
+  L *= u_perPixel ? u_baseFactor : a_base;
+  v_radiance = L;
+  v_uv = a_uv;
+  v_color = floor(prtToneMap(L, u_exposure, u_white, u_gamma) * 255.0 + 0.5) / 255.0;
+  gl_Position = projectionMatrix * modelViewMatrix * vec4(pos, 1.0);
+#else
   vec3 pos = stateTexel(item, 0).xyz;
   vec3 t = stateTexel(item, 1).xyz;
   vec3 b = stateTexel(item, 2).xyz;
@@ -163,8 +177,8 @@ void main() {
   v_color = vec3(0.0);
   v_uv = a_uv;
   gl_PointSize = 1.0;
-  gl_Position = vec4((float(vid % RADIANCE_WIDTH) + 0.5) / float(RADIANCE_WIDTH) * 2.0 - 1.0,
-                     (float(vid / RADIANCE_WIDTH) + 0.5) / float(u_radianceRows) * 2.0 - 1.0, 0.0, 1.0);
+  gl_Position = vec4((float(item % RADIANCE_WIDTH) + 0.5) / float(RADIANCE_WIDTH) * 2.0 - 1.0,
+                     (float(item / RADIANCE_WIDTH) + 0.5) / float(u_radianceRows) * 2.0 - 1.0, 0.0, 1.0);
 #else
   L *= base;
   v_radiance = L;
@@ -172,6 +186,7 @@ void main() {
   // 8-bit colours per vertex, interpolated over the triangle: what the Python player's renderer shows
   v_color = floor(prtToneMap(L, u_exposure, u_white, u_gamma) * 255.0 + 0.5) / 255.0;
   gl_Position = projectionMatrix * modelViewMatrix * vec4(pos, 1.0);
+#endif
 #endif
 }
 `;
@@ -254,7 +269,7 @@ export function makeMaterial(glsl, sizes, layout, gaunt, matrixForm = false, opt
     (dec ? `#define PRT_GPU_DECODE\n#define BASIS_P ${dec.layout.P}\n#define BASIS_R ${dec.layout.R}\n` +
       `#define LATENT_ROWS ${dec.latentRows}\n` : '') +
     `#define PEAK_TEXEL ${PEAK_TEXEL}\n#define VIS_TEXEL ${VIS_TEXEL}\n#define RADIANCE_WIDTH ${RADIANCE_WIDTH}\n` +
-    (options.radianceOut ? '#define PRT_RADIANCE_OUT\n' : '') +
+    (options.radianceOut ? '#define PRT_RADIANCE_OUT\n' : '') + (options.fromRadiance ? '#define PRT_FROM_RADIANCE\n' : '') +
     `#define PRT_GAUNT_PRODUCT ${gauntProduct(gaunt)}\n` +
     `#define PRT_SH_BASIS_UNROLLED ${shBasisUnrolled(sizes.order)}\n` +
     `#define PRT_LOBE_ACCUM_UNROLLED ${lobeAccumUnrolled(sizes.order)}\n` + (matrixForm ? '#define PRT_MATRIX_FORM\n' : '');
@@ -284,6 +299,7 @@ export function makeMaterial(glsl, sizes, layout, gaunt, matrixForm = false, opt
     u_radianceRows: { value: 1 },
     u_nVertices: { value: 0 },
     u_basis: { value: null },
+    u_radianceTex: { value: null },
     u_latent: { value: null },
   };
   return new THREE.RawShaderMaterial({
