@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any, NoReturn, TextIO
 
-from prt_torch import __version__
+import prt_torch
 
 #: sub-command name -> module path
 COMMANDS: dict[str, str] = {
@@ -71,7 +71,7 @@ def add_command_modules(parser: argparse.ArgumentParser, modules: dict[str, str]
 def build_parser() -> argparse.ArgumentParser:
     """The ``prt`` parser: one sub-parser per :data:`COMMANDS` entry, one-line argument errors."""
     parser = PrtArgumentParser(prog="prt", description="prt_torch: learned PRT for animated characters.")
-    parser.add_argument("--version", action="version", version=f"prt {__version__}")
+    parser.add_argument("--version", action="version", version=f"prt {prt_torch.__version__}")
     add_command_modules(parser, COMMANDS, "command", "_run")
     return parser
 

@@ -434,7 +434,7 @@ def _ground_scores(ground: Any, shexp_v: np.ndarray, truth: np.ndarray, lighting
         "psnr_image": img.psnr, "radiance_rel_rmse": stats.rel_rmse, "vis_rel_err": M.vis_rel_err(shexp_v, truth),
         "psnr_vertex": stats.psnr, "vertices": ground.n_vertices, "frames": n_f, "image_frames": int(len(img_idx)),
         "strip_frame": strip_f, "albedo": [float(x) for x in ground.albedo],
-        "method": "SHEXP (the scene player's compiled, culled pass; the run's shexp.onnx tables) of every "
+        "method": "SHEXP (the scene player's compiled, culled pass; the run's SHEXP graph's tables) of every "
                   "character's posed blocker spheres, diffuse RPO x albedo",
         "image": "the ground's pixels rendered alone from the scene camera, one tone map from the truth"}
     if has_ref:
