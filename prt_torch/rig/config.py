@@ -171,8 +171,8 @@ class MotionConfig(BaseModel):
     ``{file: ../shared/data/motion/94_01.bvh, name: dance, fps: 30, frames: "1:1800", joint_map: {...}}``:
     ``file`` a ``.bvh`` or humanoid ``.glb``/``.gltf`` (relative to the config file, like ``source``); ``name``
     the clip name (usable in ``train_clips``/``heldout_clips``); ``fps`` the resampling rate (default
-    ``character.fps``); ``frames`` a python slice of the resampled frames (after the CMU MotionBuilder T-pose
-    frame is skipped: ``skip_first``, default per naming family); ``joint_map`` ``{source joint: target joint}``
+    ``character.fps``); ``frames`` a python slice of the resampled frames (after a converter's reference-pose
+    frame 1 is skipped: ``skip_first``, default detected by the retargeting); ``joint_map`` ``{source joint: target joint}``
     overrides of the default map (``null`` unmaps a source joint); ``clip`` the glTF animation (default: the
     first).
     """

@@ -63,10 +63,12 @@ def add_motions(cfg: RunConfig, character: Character) -> Character:
         if not path.is_file():
             raise PrtError(f"{key}: motion file not found: {path}")
         try:
-            clip, _ = retarget_file(path, character, fps=m.fps or cfg.character.fps, joint_map=m.joint_map,
-                                    name=m.name, skip_first=m.skip_first, clip=m.clip)
+            clip, report = retarget_file(path, character, fps=m.fps or cfg.character.fps, joint_map=m.joint_map,
+                                         name=m.name, skip_first=m.skip_first, clip=m.clip)
         except PrtError as e:
             raise PrtError(f"{key}: {e}") from None
+        for w in report.warnings:  # what the retargeting detected and fixed up (units, reference frame, frame rate)
+            warn(f"{key}: {w.removeprefix('warning: ')}")
         local = clip.local[m.frame_slice()]
         if local.shape[0] == 0:
             raise PrtError(f"{key}: frames {m.frames!r} select no frame of {clip.num_frames}")
