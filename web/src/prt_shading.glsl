@@ -18,7 +18,9 @@
 //       t = the cluster's PCA axis carried by its bone, projected into the tangent plane, b = n x t).
 //       A world direction w has local coordinates F w = (t.w, b.w, n.w); local +z is the normal.
 //   Visibility v[NC]: SH of the binary visibility over the whole sphere in the local frame (the learned model's
-//       output, onnxruntime-web per frame), or the unshadowed constant (hemisphere indicator / sqrt(4 pi) e_0).
+//       output: decoded per vertex as mean + sum_k z_k basis_k from the run's per-cluster bases and the latent z
+//       onnxruntime-web computes per frame - the page's GPU decode, shading.js - or, for an export without a latent
+//       graph, the whole visibility graph's output), or the unshadowed constant (hemisphere indicator / sqrt(4 pi) e_0).
 //   Lighting lobes: NLOBES zonal-harmonic lobes (s_k, g_k): unit world axis s_k, band coefficients g_k[l] (RGB),
 //       SH coefficients f_lm = g_kl y_lm(s_k) (no sqrt(4 pi/(2l+1)) inside g). In the vertex frame a lobe only
 //       moves its axis: l_local[i] = sum_k g_k[band(i)] y_i(F s_k). Light rotation rotates the axes s_k.
