@@ -172,9 +172,9 @@ class MotionConfig(BaseModel):
     ``file`` a ``.bvh`` or humanoid ``.glb``/``.gltf`` (relative to the config file, like ``source``); ``name``
     the clip name (usable in ``train_clips``/``heldout_clips``); ``fps`` the resampling rate (default
     ``character.fps``); ``frames`` a python slice of the resampled frames (after a converter's reference-pose
-    frame 1 is skipped: ``skip_first``, default detected by the retargeting); ``joint_map`` ``{source joint: target joint}``
-    overrides of the default map (``null`` unmaps a source joint); ``clip`` the glTF animation (default: the
-    first).
+    frame 1 is skipped: ``skip_first``, default detected by the retargeting); ``joint_map`` ``{source joint:
+    target joint}`` overrides of the default map (``null`` unmaps a source joint); ``clip`` the glTF animation
+    (default: the first).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
