@@ -32,7 +32,9 @@ character costs one distance test per
 
 from __future__ import annotations
 
+import base64
 import functools
+import json
 import math
 import os
 from dataclasses import dataclass
@@ -99,6 +101,10 @@ def legendre_q(l: int, m: int) -> np.ndarray:
     return prev.coef
 
 
+#: the ``shexp.onnx`` metadata property holding :class:`ShexpTables` (:meth:`ShexpTables.to_metadata`)
+TABLES_METADATA_KEY = "prt.shexp_tables"
+
+
 @dataclass(frozen=True)
 class ShexpTables:
     """The constants of the SHEXP graph at one order: ``table (N + 1, n)`` the run-time log table
@@ -111,40 +117,43 @@ class ShexpTables:
     to_points: np.ndarray
     from_points: np.ndarray
 
+    def to_metadata(self) -> dict[str, str]:
+        """The tables as one ONNX metadata property (:data:`TABLES_METADATA_KEY`: JSON of ``{name: [shape, base64
+        of the little-endian float32 bytes]}``), which the SHEXP export writes next to the same constants."""
+        enc = {n: [list(a.shape), base64.b64encode(np.ascontiguousarray(a, dtype="<f4").tobytes()).decode("ascii")]
+               for n, a in (("table", self.table), ("ol", self.ol), ("to_points", self.to_points),
+                            ("from_points", self.from_points))}
+        return {TABLES_METADATA_KEY: json.dumps({"order": self.order, **enc})}
+
     @staticmethod
     def from_graph(path: str | os.PathLike[str]) -> ShexpTables:
-        """The tables stored in an exported ``shexp.onnx`` (graph version 2; torch-free): its constants of shapes
-        ``(N + 1, n)``, ``(N_OL, 2)``, ``(C, Q)`` and ``(Q, C)``, in the main graph and the squaring loops."""
-        import onnx
-        from onnx import numpy_helper
+        """The tables of an exported HYB ``shexp.onnx`` (torch- and onnx-free: its metadata read through onnxruntime;
+        :meth:`to_metadata`); a graph without them (an older export) is a one-line error naming ``prt export``."""
+        import onnxruntime as ort
 
-        model = onnx.load(str(path))
-        meta = {p.key: p.value for p in model.metadata_props}
-        check(meta.get("kind") == "shexp" and meta.get("prt.shexp_version") == "2" and meta.get("method") == "hyb",
-              f"{path}: not a version-2 HYB shexp graph: re-export the run (`prt export`)")
-        order = int(meta["order"])
+        try:
+            props = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).get_modelmeta() \
+                .custom_metadata_map
+        except Exception as exc:  # onnxruntime raises its own Fail / InvalidProtobuf
+            raise PrtError(f"{path}: not a readable ONNX graph ({type(exc).__name__}): re-export the run "
+                           "(`prt export RUN --force`)") from None
+        text = props.get(TABLES_METADATA_KEY)
+        if not (props.get("kind") == "shexp" and props.get("method") == "hyb" and text):
+            raise PrtError(f"{path}: not a HYB shexp graph with its tables ({TABLES_METADATA_KEY}): re-export the "
+                           "run (`prt export RUN --force`)")
+        try:
+            d = json.loads(text)
+            arr = {n: np.frombuffer(base64.b64decode(d[n][1]), dtype="<f4").reshape(d[n][0]).astype(np.float32)
+                   for n in ("table", "ol", "to_points", "from_points")}
+            order = int(d["order"])
+        except (ValueError, KeyError, TypeError, IndexError):
+            raise PrtError(f"{path}: its {TABLES_METADATA_KEY} metadata is damaged: re-export the run "
+                           "(`prt export RUN --force`)") from None
         c = order * order
-        found: dict[tuple[int, ...], np.ndarray] = {}
-
-        def walk(graph: Any) -> None:
-            for node in graph.node:
-                for a in node.attribute:
-                    if a.type == onnx.AttributeProto.GRAPH:
-                        walk(a.g)
-                    elif node.op_type == "Constant" and a.type == onnx.AttributeProto.TENSOR and len(a.t.dims) == 2:
-                        found.setdefault(tuple(a.t.dims), numpy_helper.to_array(a.t))
-            for t in graph.initializer:
-                if len(t.dims) == 2:
-                    found.setdefault(tuple(t.dims), numpy_helper.to_array(t))
-
-        walk(model.graph)
-        q = [s[1] for s in found if s[0] == c and (s[1], c) in found and s[1] != c]
-        logs = sorted((s for s in found if s[1] == order), reverse=True)  # the log table: the longest (N + 1, n)
-        ols = sorted((s for s in found if s[1] == 2 and s not in logs[:1]), reverse=True)
-        check(len(q) == 1 and bool(logs) and bool(ols) and logs[0][0] > ols[0][0],
-              f"{path}: its SHEXP tables were not found (order {order}): re-export the run (`prt export`)")
-        f32 = functools.partial(np.ascontiguousarray, dtype=np.float32)
-        return ShexpTables(order, f32(found[logs[0]]), f32(found[ols[0]]), f32(found[(c, q[0])]), f32(found[(q[0], c)]))
+        check(arr["table"].ndim == 2 and arr["table"].shape[1] == order and arr["ol"].shape[1:] == (2,)
+              and arr["to_points"].shape[0] == c and arr["from_points"].shape == arr["to_points"].shape[::-1],
+              f"{path}: its {TABLES_METADATA_KEY} metadata does not have the SHEXP tables' shapes")
+        return ShexpTables(order, arr["table"], arr["ol"], arr["to_points"], arr["from_points"])
 
 
 def log_norm_bound(tables: ShexpTables, eps: float = CULL_SOLID_ANGLE) -> float:

@@ -22,12 +22,15 @@ from prt_torch.export.onnx_file import export_onnx
 from prt_torch.export.parity import PARITY_RTOL, Parity, check_parity
 from prt_torch.export.shippers import ExportRequest, ShipInputs, Shipment, Shipper
 from prt_torch.rundir import RunDir
+from prt_torch.scene.shexp_kernel import ShexpTables
 from prt_torch.shexp.visibility import ShexpVisibility
 
-SHEXP_GRAPH_VERSION = 2
-"""Metadata ``prt.shexp_version`` of graphs written by this code. 2: cos-uniform log table, zonal sum without
-``(V, S, C)`` tensors, squaring through point values in an ONNX ``Loop`` of ``max(k)`` steps (~10x faster than 1,
-same inputs, outputs and numerics to ~1e-3). Consumers may re-export an older graph (``prt compare`` does)."""
+SHEXP_GRAPH_VERSION = 3
+"""Metadata ``prt.shexp_version`` of graphs written by this code. 3: the tables also in the metadata
+(``prt_torch.scene.shexp_kernel.TABLES_METADATA_KEY``, read by the compiled scene pass). 2: cos-uniform log table,
+zonal sum without ``(V, S, C)`` tensors, squaring through point values in an ONNX ``Loop`` of ``max(k)`` steps (~10x
+faster than 1, same inputs, outputs and numerics to ~1e-3). Consumers may re-export an older graph (``prt compare``
+does)."""
 SHEXP_INPUTS = ("points", "frames", "centers", "radii")
 SHEXP_OUTPUTS = ("visibility",)
 SHEXP_PARITY_RTOL = 1e-3
@@ -55,6 +58,9 @@ def export_shexp(path: str | os.PathLike[str], order: int, method: str = "hyb", 
     meta = {"kind": "shexp", "order": str(order), "method": method,
             "below_horizon": "none" if below_horizon is None else below_horizon,
             "prt.shexp_version": str(SHEXP_GRAPH_VERSION)}
+    if method == "hyb":  # the compiled scene pass reads the graph's tables from its metadata (no onnx, no torch)
+        b = {k: v.detach().cpu().numpy() for k, v in module.named_buffers()}
+        meta.update(ShexpTables(order, b["table"], b["exp.ol"], b["exp.to_points"], b["exp.from_points"]).to_metadata())
     meta.update(metadata or {})
     return export_onnx(module, [torch.from_numpy(ex[k]) for k in SHEXP_INPUTS], path, SHEXP_INPUTS, SHEXP_OUTPUTS,
                        dynamic_axes={"points": {0: "B", 1: "V"}, "frames": {0: "B", 1: "V"},

@@ -41,14 +41,67 @@ def _receivers(rng: np.random.Generator, v: int, s: int):
     return pts, frames.astype(np.float32), centers, radii
 
 
+def _graph_constants(path) -> ShexpTables:
+    """The 2-D constants the graph computes with (read with ``onnx``, not through its metadata): shapes
+    ``(N + 1, n)``, ``(N_OL, 2)``, ``(C, Q)``, ``(Q, C)``, in the main graph and the squaring loops."""
+    import onnx
+    from onnx import numpy_helper
+
+    model = onnx.load(str(path))
+    order = int({p.key: p.value for p in model.metadata_props}["order"])
+    c = order * order
+    found: dict[tuple[int, ...], np.ndarray] = {}
+
+    def walk(graph) -> None:
+        for node in graph.node:
+            for a in node.attribute:
+                if a.type == onnx.AttributeProto.GRAPH:
+                    walk(a.g)
+                elif node.op_type == "Constant" and a.type == onnx.AttributeProto.TENSOR and len(a.t.dims) == 2:
+                    found.setdefault(tuple(a.t.dims), numpy_helper.to_array(a.t))
+        for t in graph.initializer:
+            if len(t.dims) == 2:
+                found.setdefault(tuple(t.dims), numpy_helper.to_array(t))
+
+    walk(model.graph)
+    q = [k[1] for k in found if k[0] == c and (k[1], c) in found and k[1] != c]
+    logs = sorted((k for k in found if k[1] == order), reverse=True)  # the log table: the longest (N + 1, n)
+    ols = sorted((k for k in found if k[1] == 2 and k not in logs[:1]), reverse=True)
+    assert len(q) == 1 and logs and ols and logs[0][0] > ols[0][0], sorted(found)
+    return ShexpTables(order, found[logs[0]], found[ols[0]], found[(c, q[0])], found[(q[0], c)])
+
+
 def test_tables_from_the_graph_are_the_built_ones(scene_run) -> None:  # noqa: F811
     from prt_torch.rundir import RunDir
 
     run = RunDir(scene_run)
-    got = ShexpTables.from_graph(run.shexp_path)
+    got = ShexpTables.from_graph(run.shexp_path)  # the metadata, through onnxruntime
     ref = _built(got.order)
+    consts = _graph_constants(run.shexp_path)
     for name in ("table", "ol", "to_points", "from_points"):
         assert_bitwise(getattr(got, name), getattr(ref, name), why="the graph stores the float32 tables as built")
+        assert_bitwise(getattr(got, name), getattr(consts, name), why="the metadata holds the graph's own constants")
+
+
+def test_a_graph_without_its_tables_is_refused(scene_run, tmp_path) -> None:  # noqa: F811
+    """An older export (no tables in the metadata) or damaged tables: one-line errors naming the re-export."""
+    import onnx
+
+    from prt_torch.errors import PrtError
+    from prt_torch.rundir import RunDir
+    from prt_torch.scene.shexp_kernel import TABLES_METADATA_KEY
+
+    model = onnx.load(str(RunDir(scene_run).shexp_path))
+    keep = [(p.key, p.value) for p in model.metadata_props if p.key != TABLES_METADATA_KEY]
+    for name, extra in (("old", None), ("damaged", "{not json")):
+        del model.metadata_props[:]
+        for k, v in keep + ([(TABLES_METADATA_KEY, extra)] if extra else []):
+            model.metadata_props.add(key=k, value=v)
+        path = tmp_path / f"{name}.onnx"
+        onnx.save(model, str(path))
+        with pytest.raises(PrtError, match="re-export the run") as e:
+            ShexpTables.from_graph(path)
+        assert "\n" not in str(e.value)
 
 
 @pytest.mark.parametrize("world", [False, True])
