@@ -2,8 +2,12 @@
 
 What is read:
 
-* the default scene's node hierarchy; the skin of the first skinned mesh node and every mesh node
-  using that skin (all their triangle primitives are merged);
+* the default scene's node hierarchy; the skin of the first skinned mesh node (the primary skin) and every mesh
+  node that belongs to its skeleton, merged into one character (all their triangle primitives): nodes using
+  that skin, nodes with another skin over joints of the same skeleton (joint indices mapped, vertices moved into
+  the primary mesh space), and rigid parts - mesh nodes without a skin below a joint (a sword, a helmet),
+  skinned fully to their nearest joint ancestor (:func:`_mesh_parts`); other mesh nodes are left out with one
+  warning line;
 * ``POSITION``, ``NORMAL`` (optional), ``JOINTS_0/WEIGHTS_0`` (+ ``JOINTS_1/WEIGHTS_1``), indices;
   normalised integer attributes, strided buffer views, sparse accessors; ``.glb``, ``.gltf`` with
   data-URI or external buffers;
@@ -29,8 +33,9 @@ animation of non-joint nodes is ignored. Bind pose: with ``G = world_rest(root j
 positions``, so skinning reproduces the glTF result (rotated to z-up) exactly at every pose. Units are
 the file's (Fox.glb is ~80 units tall). Vertices are welded on equal position and skin
 (non-indexed files such as Fox.glb); missing normals are computed (area weighted), existing ones
-are averaged over welded duplicates. Weights within ``WEIGHT_TOLERANCE`` of summing to one are
-renormalised; others raise :class:`~prt_torch.errors.PrtError`.
+are averaged over welded duplicates. Weights are normalised to sum to one; where some vertex's sum is off
+by more than ``WEIGHT_TOLERANCE`` (exporters that do not normalise) that is one warning line; a vertex whose
+weights are all zero raises :class:`~prt_torch.errors.PrtError`.
 
 Malformed files: :func:`read_document` checks the GLB container (magic, version, header and chunk
 lengths against the file) and decodes every buffer (strict base64; truncated buffers rejected), then
@@ -58,7 +63,7 @@ from typing import Any
 import numpy as np
 
 from prt_torch import limits as L
-from prt_torch.errors import PrtError, check
+from prt_torch.errors import PrtError, check, warn
 from prt_torch.rig.character import Character
 from prt_torch.rig.clip import Clip
 from prt_torch.rig.material import Material
@@ -598,20 +603,23 @@ def load_gltf(path: str | os.PathLike[str], fps: float = 30.0, name: str | None 
         warnings.simplefilter("ignore")  # numeric chatter: every result is checked for NaN/inf instead
         gltf, buffers = read_document(path)
         graph = validate_document(gltf, buffers, path.name)
+        notes: list[str] = []
         try:
-            character = _build(gltf, buffers, graph, path, fps, name)
+            character = _build(gltf, buffers, graph, path, fps, name, notes)
         except np.linalg.LinAlgError:
             raise PrtError(f"{path.name}: singular joint or bind transform") from None
         if height is not None:
             extent = float(np.ptp(character.rest_vertices[:, 2]))
             check(extent > 0, f"{path.name}: the rest mesh has no vertical extent to scale")
             character = character.scaled(height / extent)
+    for message in notes:  # outside the numeric-chatter filter above
+        warn(message)
     return character
 
 
 def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fps: float,
-           name: str | None) -> Character:
-    """The loader proper, on a document :func:`validate_document` accepted."""
+           name: str | None, notes: list[str]) -> Character:
+    """The loader proper, on a document :func:`validate_document` accepted; one-line warnings go to ``notes``."""
     check(len(gltf.nodes) > 0, f"glTF file {path.name} has no nodes")
     reader = _Reader(gltf, buffers, path.name)
     nodes = gltf.nodes
@@ -620,7 +628,6 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
     check(len(skinned) > 0, f"glTF file {path.name} has no skinned mesh (no node with both a mesh and a skin)")
     skin_index = nodes[skinned[0]].skin
     skin = gltf.skins[skin_index]
-    mesh_nodes = [i for i in skinned if nodes[i].skin == skin_index]
     joint_nodes = list(skin.joints)
     check(len(joint_nodes) > 0, f"glTF skin {skin_index} of {path.name} has no joints")
     joint_set = set(joint_nodes)
@@ -659,6 +666,7 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
     check(bool(np.all(np.isfinite(g))) and abs(np.linalg.det(g[:3, :3])) > 1e-12,
           f"{path.name}: singular bind transform")
     cg = _C4 @ g
+    parts = _mesh_parts(gltf, reader, graph, path, skin_index, node_world, g, notes)
     bind_world = cg[None] @ np.linalg.inv(ibm)
     inverse_bind = ibm @ np.linalg.inv(cg)[None]
     check(bool(np.all(np.isfinite(bind_world))) and bool(np.all(np.isfinite(inverse_bind))),
@@ -672,22 +680,33 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
     pos_l, nrm_l, jnt_l, wgt_l, face_l, uv_l, mat_l = [], [], [], [], [], [], []
     have_normals = True
     offset = 0
-    for mi in mesh_nodes:
-        for prim in gltf.meshes[nodes[mi].mesh].primitives:
+    for part in parts:
+        for prim in gltf.meshes[nodes[part.node].mesh].primitives:
             if prim.mode not in (None, 4):
                 continue  # points/lines/strips are not surfaces we can shade
             at = prim.attributes
             check(at.POSITION is not None, f"{path.name}: a primitive has no POSITION")
-            check(at.JOINTS_0 is not None and at.WEIGHTS_0 is not None,
-                  f"{path.name}: a skinned primitive has no JOINTS_0/WEIGHTS_0")
             p = reader.read(at.POSITION)
-            jt = reader.read(at.JOINTS_0)
-            wt = reader.read(at.WEIGHTS_0).astype(np.float64)
-            if getattr(at, "JOINTS_1", None) is not None and getattr(at, "WEIGHTS_1", None) is not None:
-                jt = np.concatenate([jt, reader.read(at.JOINTS_1)], axis=1)
-                wt = np.concatenate([wt, reader.read(at.WEIGHTS_1).astype(np.float64)], axis=1)
+            if part.rigid_joint is not None:  # a rigid part: skinned fully to the joint it hangs from
+                jt = np.full((p.shape[0], 1), part.rigid_joint, dtype=np.int64)
+                wt = np.ones((p.shape[0], 1))
+            else:
+                check(at.JOINTS_0 is not None and at.WEIGHTS_0 is not None,
+                      f"{path.name}: a skinned primitive has no JOINTS_0/WEIGHTS_0")
+                jt = reader.read(at.JOINTS_0)
+                wt = reader.read(at.WEIGHTS_0).astype(np.float64)
+                if getattr(at, "JOINTS_1", None) is not None and getattr(at, "WEIGHTS_1", None) is not None:
+                    jt = np.concatenate([jt, reader.read(at.JOINTS_1)], axis=1)
+                    wt = np.concatenate([wt, reader.read(at.WEIGHTS_1).astype(np.float64)], axis=1)
+                check(bool(np.all((jt >= 0) & (jt < part.joint_map.size))),
+                      f"{path.name}: JOINTS_0 index out of range in mesh node {part.label}")
+                jt = part.joint_map[jt]
+            if part.to_mesh is not None:  # into the primary skin's mesh space
+                check(bool(np.all(np.isfinite(p))), f"{path.name}: vertex positions contain NaN or inf")
+                p = p @ part.to_mesh[:3, :3].T + part.to_mesh[:3, 3]
             if at.NORMAL is not None:
-                nrm_l.append(reader.read(at.NORMAL))
+                n_part = reader.read(at.NORMAL)
+                nrm_l.append(n_part if part.to_mesh is None else n_part @ np.linalg.inv(part.to_mesh[:3, :3]))
             else:
                 have_normals = False
             idx = (np.arange(p.shape[0]) if prim.indices is None else reader.read(prim.indices)[:, 0])
@@ -712,10 +731,12 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
     check(bool(np.all((faces >= 0) & (faces < pos.shape[0]))), f"{path.name}: triangle indices out of range")
     check(bool(np.all((jnt >= 0) & (jnt < len(joint_nodes)))), f"{path.name}: JOINTS_0 index out of range")
     sums = wgt.sum(axis=1)
+    check(bool(np.all(sums > 0)), f"{path.name}: {int((sums <= 0).sum())} vertices have skin weights that are all "
+                                  f"zero (no joint moves them)")
     bad = np.abs(sums - 1.0) > WEIGHT_TOLERANCE
-    check(not bool(np.any(bad)), f"{path.name}: skin weights of {int(bad.sum())} vertices do not sum to 1 "
-                                 f"(worst sum {sums[bad][np.argmax(np.abs(sums[bad] - 1))]:.3g})"
-          if np.any(bad) else "")
+    if np.any(bad):
+        notes.append(f"{path.name}: skin weights of {int(bad.sum())} vertices do not sum to 1 (sums "
+                     f"{sums[bad].min():.3g}..{sums[bad].max():.3g}); normalised")
     wgt = wgt / sums[:, None]
     jnt = np.where(wgt > 0, old_to_new[jnt], 0)  # canonical index for zero weights (welding)
     pos = pos @ cg[:3, :3].T + cg[:3, 3]
@@ -777,6 +798,75 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
     return Character(name or path.stem, jname, parents, bind_local, inverse_bind, pos_w.astype(np.float32),
                      nrm_w.astype(np.float32), faces_w, jnt_w, wgt_w.astype(np.float32), clips, uv=uv,
                      material=material)
+
+
+@dataclass(frozen=True)
+class _MeshPart:
+    """One mesh node of the character: ``node`` its index, ``label`` its name for messages; ``joint_map (K,)`` int64
+    its skin's joint indices -> the primary skin's (``None`` for a rigid part), ``rigid_joint`` the primary skin's
+    joint index a rigid part is skinned to fully (else ``None``), ``to_mesh (4, 4)`` its mesh space -> the primary
+    skin's mesh space (``None``: the same space)."""
+
+    node: int
+    label: str
+    joint_map: np.ndarray | None
+    rigid_joint: int | None
+    to_mesh: np.ndarray | None
+
+
+def _mesh_parts(gltf: Any, reader: _Reader, graph: DocumentGraph, path: Path, skin_index: int,
+                node_world: np.ndarray, g: np.ndarray, notes: list[str]) -> list[_MeshPart]:
+    """The mesh nodes that make one character with skin ``skin_index`` (the primary skin), in node order.
+
+    * every node skinned with the primary skin;
+    * a node with another skin whose joints are all joints of the primary skin: its joint indices are mapped to
+      the primary skin's, its vertices moved into the primary mesh space by ``inv(G) @ G2`` (``G2 =
+      world_rest(joint_0) @ IBM_0`` of its own skin; ``g`` is the primary's ``G``, ``node_world (N, 4, 4)`` the
+      nodes' rest world transforms);
+    * a mesh node without a skin below a joint of the primary skin (itself or its nearest joint ancestor): a rigid
+      part, skinned fully to that joint, its vertices moved by ``inv(G) @ world_rest(node)``.
+
+    Any other mesh node (another skeleton, or not attached to one) is left out with one line in ``notes``.
+    """
+    nodes = gltf.nodes
+    joints = list(gltf.skins[skin_index].joints)
+    index_of = {n: k for k, n in enumerate(joints)}
+    inv_g = np.linalg.inv(g)
+    parts: list[_MeshPart] = []
+    left_out: list[str] = []
+    for i, node in enumerate(nodes):
+        if node.mesh is None:
+            continue
+        label = node.name if isinstance(node.name, str) and node.name else f"node_{i}"
+        if node.skin == skin_index:
+            parts.append(_MeshPart(i, label, np.arange(len(joints), dtype=np.int64), None, None))
+        elif node.skin is not None:
+            other = gltf.skins[node.skin]
+            if not all(j in index_of for j in other.joints):
+                left_out.append(f"{label!r} (skin {node.skin} has joints outside skin {skin_index})")
+                continue
+            if other.inverseBindMatrices is not None:
+                ibm0 = reader.read(other.inverseBindMatrices).reshape(-1, 4, 4)[0].T
+            else:
+                ibm0 = np.eye(4)
+            to_mesh = inv_g @ node_world[other.joints[0]] @ ibm0
+            check(bool(np.all(np.isfinite(to_mesh))), f"{path.name}: singular bind transform of mesh node {label!r}")
+            parts.append(_MeshPart(i, label, np.array([index_of[j] for j in other.joints], dtype=np.int64), None,
+                                   to_mesh))
+        else:
+            a = i
+            while a >= 0 and a not in index_of:  # terminates: validate_document rejects cycles
+                a = int(graph.parent[a])
+            if a < 0:
+                left_out.append(f"{label!r} (no skin and no joint above it)")
+                continue
+            to_mesh = inv_g @ node_world[i]
+            check(bool(np.all(np.isfinite(to_mesh))), f"{path.name}: singular transform of mesh node {label!r}")
+            parts.append(_MeshPart(i, label, None, index_of[a], to_mesh))
+    if left_out:
+        notes.append(f"{path.name}: {len(left_out)} mesh node(s) not part of the character, left out: "
+                     f"{', '.join(left_out[:4])}{', ...' if len(left_out) > 4 else ''}")
+    return parts
 
 
 def _material_and_uv(gltf: Any, reader: _Reader, path: Path, mat_l: list[Any], uv_l: list[Any],

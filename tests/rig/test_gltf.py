@@ -12,7 +12,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import PrtError, PrtWarning
 from prt_torch.rig.gltf import clip_names, load_gltf
 from tests.rig.gltf_synth import GltfBuilder
 
@@ -203,10 +203,21 @@ def test_weights_near_one_are_normalised(tmp_path: Path) -> None:
     np.testing.assert_allclose(c.weights.sum(1), 1.0, atol=1e-6)
 
 
+def test_weights_far_from_one_are_normalised_with_a_warning(tmp_path: Path) -> None:
+    """Exporters that do not normalise: weights summing to 0.7 load as the same rig (the posed vertices of the
+    normalised rig, 1e-5: float32 positions) with one warning line naming the count."""
+    ref = load_gltf(write_rig(tmp_path / "rig.glb"), fps=10.0)
+    with pytest.warns(PrtWarning, match=r"^bad\.glb: skin weights of \d+ vertices do not sum to 1 .*; normalised$"):
+        c = load_gltf(write_rig(tmp_path / "bad.glb", weight_scale=0.7), fps=10.0)
+    np.testing.assert_allclose(c.weights.sum(1), 1.0, atol=1e-6)
+    name = sorted(ref.clips)[0]
+    np.testing.assert_allclose(c.skin_mesh(c.pose(name))[0], ref.skin_mesh(ref.pose(name))[0], atol=1e-5)
+
+
 @pytest.mark.parametrize("kwargs, match", [
     ({"skin": False}, "no skinned mesh"),
     ({"nan": True}, "NaN"),
-    ({"weight_scale": 0.7}, "do not sum to 1"),
+    ({"weight_scale": 0.0}, "all zero"),
 ])
 def test_bad_gltf_raises(tmp_path: Path, kwargs: dict, match: str) -> None:
     path = write_rig(tmp_path / "bad.glb", **kwargs)
