@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-HELP = "Run everything on the built-in character (bake, fit, export, play, compare) into runs/demo/."
+HELP = ("Run a config's whole pipeline (bake, fit, export, the held-out comparison and video) into runs/<name>/; "
+        "default: configs/demo.yaml, the built-in character, into runs/demo/.")
 
 #: hemisphere rays per vertex of each of the comparison's two Monte-Carlo reference estimates (one frame)
 REFERENCE_RAYS = 64
