@@ -7,15 +7,26 @@ Analytic isotropic BRDFs (:mod:`~prt_torch.brdf.analytic`), MERL measured BRDFs
 """
 
 from prt_torch.brdf.analytic import BRDF, BlinnPhong, CookTorrance, Lambert, Phong, Ward
-from prt_torch.brdf.factor import BRDFFactors, factor_brdf, hemisphere_rule, project_factors, tabulate
+from prt_torch.brdf.factor import (
+    FACTOR_ORDERS,
+    BRDFFactors,
+    SHFactors,
+    factor_brdf,
+    factor_sh,
+    hemisphere_rule,
+    project_factors,
+    tabulate,
+)
 from prt_torch.brdf.merl import MerlBRDF, read_merl, write_merl
 from prt_torch.brdf.rpo import CATALOGUE, RPO, build_rpo, builtin_brdf, builtin_rpo
 
 __all__ = [
     "BRDF",
     "CATALOGUE",
+    "FACTOR_ORDERS",
     "RPO",
     "BRDFFactors",
+    "SHFactors",
     "BlinnPhong",
     "CookTorrance",
     "Lambert",
@@ -26,6 +37,7 @@ __all__ = [
     "builtin_brdf",
     "builtin_rpo",
     "factor_brdf",
+    "factor_sh",
     "hemisphere_rule",
     "project_factors",
     "read_merl",

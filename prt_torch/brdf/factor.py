@@ -18,6 +18,21 @@ SH (order ``n``):
   i.e. the orthogonal projection in ``L2(hemisphere)``, which avoids fitting an arbitrary extension
   below the horizon.
 
+Factorisation order (:data:`FACTOR_ORDERS`, :func:`factor_sh`, the one owner of the rule):
+
+* ``"before"`` (Kautz & McCool, seed 003): the SVD of the tabulated ``f~`` above, each factor then projected to SH
+  (:func:`factor_brdf` + :func:`project_factors`): the truncation is optimal for ``f~`` itself, not for what the
+  order-``n`` shading keeps of it;
+* ``"after"`` (seed 001, "we decompose the BRDF matrix after spherical harmonic projection"): first the
+  untruncated order-``n`` operator ``T (C, C)`` (:func:`full_operator`: per tabulated view direction, the
+  light-side lobe projected to SH over the sphere; then each light coefficient's view dependence fitted to SH over
+  the upper hemisphere), then the SVD of ``R T`` with ``R`` (:func:`view_metric`) the Cholesky factor of the view
+  SH's hemisphere Gram matrix, so that ``||R E||_F = ||E||`` in the norm the shading sees (view over the
+  hemisphere, light in SH coefficients): the ``k``-term truncation is the best rank-``k`` approximation of ``T``
+  in that norm (Eckart-Young). Rank ``<= C``: ``k >= C`` is ``T`` exactly.
+
+Both give RPO factors ``u, w (k, C)`` with ``T ~= w^T u``; :func:`operator_error` measures either against ``T``.
+
 numpy only.
 """
 
@@ -28,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from prt_torch.errors import PrtError
+from prt_torch.errors import PrtError, warn
 from prt_torch.sh.basis import check_order, sh_basis
 from prt_torch.shapes import check_shape
 
@@ -38,6 +53,10 @@ DEFAULT_N_PHI = 48
 #: BRDF terms ``k`` of a factorisation, of an RPO and of the exported shading graphs by default (``prt export
 #: --terms``)
 DEFAULT_TERMS = 8
+#: factorisation orders (module docstring): SVD of the tabulated BRDF, or of its SH projection
+FACTOR_ORDERS = ("before", "after")
+#: the factorisation order of every RPO built by default
+DEFAULT_FACTOR_ORDER = "before"
 
 
 def hemisphere_rule(n_theta: int = DEFAULT_N_THETA, n_phi: int = DEFAULT_N_PHI) -> tuple[np.ndarray, np.ndarray]:
@@ -163,16 +182,121 @@ def project_factors(factors: BRDFFactors, order: int) -> tuple[np.ndarray, np.nd
 
 def sh_factor_error(factors: BRDFFactors, u: np.ndarray, w: np.ndarray, table: np.ndarray) -> float:
     """Relative L2 error of ``sum_b (u_b . y(wi)) (w_b . y(wo))`` vs the table ``f~`` over
-    (sphere of ``wi``) x (hemisphere of ``wo``); the lower ``wi`` hemisphere (where ``f~ = 0``) uses the
+    (sphere of ``wi``) x (hemisphere of ``wo``) on the factors' rules (:func:`sh_rule_error`)."""
+    return sh_rule_error(factors.dirs_in, factors.weights_in, factors.dirs_out, factors.weights_out, u, w, table)
+
+
+def sh_rule_error(dirs_in: np.ndarray, weights_in: np.ndarray, dirs_out: np.ndarray, weights_out: np.ndarray,
+                  u: np.ndarray, w: np.ndarray, table: np.ndarray) -> float:
+    """Relative L2 error of ``sum_b (u_b . y(wi)) (w_b . y(wo))`` (``u, w (k, C)``) vs the table ``f~ (Ni, No)``
+    over (sphere of ``wi``) x (hemisphere of ``wo``); the lower ``wi`` hemisphere (where ``f~ = 0``) uses the
     mirrored rule."""
     order = int(round(math.sqrt(u.shape[1])))
-    yi = sh_basis(factors.dirs_in, order, check=False)
-    yo = sh_basis(factors.dirs_out, order, check=False)
-    lower = factors.dirs_in * np.array([1.0, 1.0, -1.0])
+    yi = sh_basis(dirs_in, order, check=False)
+    yo = sh_basis(dirs_out, order, check=False)
+    lower = dirs_in * np.array([1.0, 1.0, -1.0])
     yl = sh_basis(lower, order, check=False)
-    a, b = factors.weights_in, factors.weights_out
+    a, b = weights_in, weights_out
     approx_up = (yi @ u.T) @ (yo @ w.T).T
     approx_lo = (yl @ u.T) @ (yo @ w.T).T
     err = (a[:, None] * (approx_up - table) ** 2 * b[None, :]).sum() + (a[:, None] * approx_lo**2 * b[None, :]).sum()
     norm = (a[:, None] * table**2 * b[None, :]).sum()
     return math.sqrt(err / norm) if norm > 0 else 0.0
+
+
+def check_factor_order(factor_order: str) -> str:
+    """``factor_order`` if it is one of :data:`FACTOR_ORDERS`, else a one-line :class:`PrtError`."""
+    if factor_order not in FACTOR_ORDERS:
+        raise PrtError(f"unknown BRDF factorisation order {factor_order!r}: expected one of {', '.join(FACTOR_ORDERS)}")
+    return factor_order
+
+
+def view_metric(dirs_out: np.ndarray, weights_out: np.ndarray, order: int) -> np.ndarray:
+    """``R (C, C)`` upper triangular with ``R^T R = Y^T diag(b) Y`` (the view SH's Gram matrix over the hemisphere
+    rule ``dirs_out (No, 3)``, ``weights_out (No,)``): ``||R e||`` is the hemisphere L2 norm of ``e . y(wo)``."""
+    check_order(order)
+    yo = sh_basis(dirs_out, order, check=False) * np.sqrt(weights_out)[:, None]
+    r = np.linalg.qr(yo, mode="r")
+    return r * np.where(np.diag(r) < 0, -1.0, 1.0)[:, None]  # unique factor: positive diagonal
+
+
+def full_operator(table: np.ndarray, dirs: np.ndarray, weights: np.ndarray, order: int) -> np.ndarray:
+    """The untruncated order-``n`` operator ``T (C_o, C_i)`` of the table ``f~ (N, N)`` on the hemisphere rule
+    ``dirs (N, 3)``, ``weights (N,)`` (both directions): ``P[j] = sum_i a_i f~(wi_i, wo_j) y(wi_i)`` (the light-side
+    lobe projected over the sphere; ``f~ = 0`` below the horizon), then ``T`` the hemisphere least-squares fit of
+    ``P`` in ``y(wo)``: ``L(wo) ~= sum y_co(wo) T[co, ci] <light product>_ci``. No SVD anywhere."""
+    check_order(order)
+    y = sh_basis(dirs, order, check=False)
+    p = table.T @ (weights[:, None] * y)  # (No, C_i)
+    sw = np.sqrt(weights)
+    coef, *_ = np.linalg.lstsq(y * sw[:, None], p * sw[:, None], rcond=None)
+    return coef  # (C_o, C_i)
+
+
+def operator_error(T: np.ndarray, u: np.ndarray, w: np.ndarray, R: np.ndarray) -> float:
+    """Relative error ``||R (T - w^T u)||_F / ||R T||_F`` of factors ``u, w (k, C)`` against the operator ``T (C, C)``
+    in the view-hemisphere x light-SH norm (``R``: :func:`view_metric`)."""
+    norm = float(np.linalg.norm(R @ T))
+    return float(np.linalg.norm(R @ (T - w.T @ u))) / norm if norm > 0 else 0.0
+
+
+@dataclass
+class SHFactors:
+    """``k`` SH-domain terms ``T ~= w^T u`` of a BRDF's order-``n`` operator.
+
+    Attributes:
+        u: ``(k, C)`` light factors' SH; w: ``(k, C)`` view factors' SH.
+        singular_values: the factorisation's leading singular values (``"before"``: of the weighted table;
+            ``"after"``: of ``R T``; at most ``C`` for ``"after"``).
+        rel_error: relative error of the truncation in the norm that order factors in (``"before"``: ``f~`` over
+            hemisphere x hemisphere; ``"after"``: :func:`operator_error`).
+        operator_error: :func:`operator_error` against the untruncated operator (comparable across orders).
+        factors: the tabulated factors (``"before"`` only, else ``None``).
+    """
+
+    u: np.ndarray
+    w: np.ndarray
+    singular_values: np.ndarray
+    rel_error: float
+    operator_error: float
+    factors: BRDFFactors | None = None
+
+
+def factor_sh(brdf: object, order: int, k: int = DEFAULT_TERMS, factor_order: str = DEFAULT_FACTOR_ORDER,
+              n_theta: int = DEFAULT_N_THETA, n_phi: int = DEFAULT_N_PHI, table: np.ndarray | None = None,
+              quiet: bool = False) -> SHFactors:
+    """The ``k``-term SH factors of a BRDF at SH ``order`` by ``factor_order`` (module docstring).
+
+    ``"after"`` with ``k > C`` is the exact operator plus ``k - C`` zero terms (one ``warning:`` line unless
+    ``quiet``). ``table``: optional precomputed :func:`tabulate` output on the rule.
+    """
+    check_factor_order(factor_order)
+    check_order(order)
+    if not isinstance(k, int) or isinstance(k, bool) or k < 1:
+        raise PrtError(f"number of BRDF terms k must be a positive integer, got {k!r}")
+    dirs, wts = hemisphere_rule(n_theta, n_phi)
+    F = tabulate(brdf, dirs, dirs) if table is None else np.asarray(table, dtype=np.float64)
+    check_shape(F, (len(wts), len(wts)), name="BRDF table")
+    T = full_operator(F, dirs, wts, order)
+    R = view_metric(dirs, wts, order)
+    if factor_order == "before":
+        f = factor_brdf(brdf, k, n_theta, n_phi, table=F)
+        u, w = project_factors(f, order)
+        return SHFactors(u, w, f.singular_values, f.rel_error, operator_error(T, u, w, R), f)
+    c = order * order
+    if k > c and not quiet:
+        warn(f"{k} BRDF terms exceed the rank {c} of the order-{order} operator: factor_order 'after' pads "
+             f"{k - c} zero terms (k = {c} is already exact)")
+    U, S, Vt = np.linalg.svd(R @ T)
+    m = min(k, c)
+    r = np.sqrt(S[:m])
+    u = np.zeros((k, c))
+    w = np.zeros((k, c))
+    u[:m] = Vt[:m] * r[:, None]
+    w[:m] = np.linalg.solve(R, U[:, :m] * r[None, :]).T
+    # deterministic signs, as "before": each light factor integrates to a non-negative value (its y_00 coefficient)
+    sgn = np.where(u[:, 0] < 0, -1.0, 1.0)[:, None]
+    u, w = u * sgn, w * sgn
+    total = float(np.sum(S**2))
+    rel = float(np.sqrt(max(total - float(np.sum(S[:m] ** 2)), 0.0) / total)) if total > 0 else 0.0
+    return SHFactors(u, w, S[:m], rel, operator_error(T, u, w, R), None)

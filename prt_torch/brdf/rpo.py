@@ -5,7 +5,9 @@ An RPO of a BRDF holds, for ``k`` Kautz-McCool terms and SH order ``n`` (``C = n
 * ``u (k, C)``: SH of the light factors ``U_b`` (sphere projection, :mod:`prt_torch.brdf.factor`);
 * ``w (k, C)``: SH of the view factors ``W_b`` (least squares over the upper hemisphere);
 * ``M (k, C, C)``: product matrices ``M_b = sum_k u_bk Gamma_{., ., k}`` (eq. 10);
-* ``tint (3,)``: RGB scale of the BRDF shape that was factored.
+* ``tint (3,)``: RGB scale of the BRDF shape that was factored;
+* ``factor_order``: ``"before"`` or ``"after"`` the SH projection (:mod:`prt_torch.brdf.factor`; a file without the
+  entry was written before the option existed: ``"before"``).
 
 Shading (eq. 11): ``L(wo) = tint * sum_b (w_b . y(wo)) (l . (M_b v))``. The paper stores
 ``k n^2 (1 + n^2)`` floats (``M`` and ``w``; 2176 floats = 8704 bytes for ``k = 8``, ``n = 4``). The file
@@ -25,13 +27,14 @@ import numpy as np
 
 from prt_torch.brdf.analytic import BRDF, BlinnPhong, CookTorrance, Lambert, Phong, Ward
 from prt_torch.brdf.factor import (
+    DEFAULT_FACTOR_ORDER,
     DEFAULT_N_PHI,
     DEFAULT_N_THETA,
     DEFAULT_TERMS,
-    factor_brdf,
+    check_factor_order,
+    factor_sh,
     hemisphere_rule,
-    project_factors,
-    sh_factor_error,
+    sh_rule_error,
     tabulate,
 )
 from prt_torch.errors import DamagedArtifact, MissingArtifact, PrtError, StaleArtifact
@@ -55,6 +58,9 @@ class RPO:
         name: catalogue / BRDF name.
         rel_error: relative L2 error of the ``k``-term SVD truncation of ``f~``.
         sh_rel_error: relative L2 error of the SH-projected factorisation vs ``f~`` (NaN if unknown).
+        factor_order: how the factors were made (:data:`prt_torch.brdf.factor.FACTOR_ORDERS`).
+        meta: build figures (not saved): ``seconds``, ``operator_error`` (vs the untruncated order-``n``
+            operator, :func:`prt_torch.brdf.factor.operator_error`).
     """
 
     M: np.ndarray
@@ -66,6 +72,7 @@ class RPO:
     rel_error: float
     sh_rel_error: float = float("nan")
     meta: dict[str, float] = field(default_factory=dict)
+    factor_order: str = "before"
 
     @property
     def k(self) -> int:
@@ -85,8 +92,9 @@ class RPO:
 
     @classmethod
     def from_factors(cls, u: np.ndarray, w: np.ndarray, tint: np.ndarray, name: str, rel_error: float,
-                     sh_rel_error: float = float("nan")) -> RPO:
+                     sh_rel_error: float = float("nan"), factor_order: str = "before") -> RPO:
         """Validate ``u, w (k, C)`` and build ``M`` from ``u``."""
+        check_factor_order(factor_order)
         u = np.asarray(u, dtype=np.float32)
         w = np.asarray(w, dtype=np.float32)
         if u.ndim != 2 or u.shape != w.shape:
@@ -100,7 +108,7 @@ class RPO:
             raise PrtError(f"RPO tint must be a finite RGB triple, got shape {t.shape}")
         M = product_matrix(u.astype(np.float64)).astype(np.float32)
         return cls(M=M, u=u, w=w, tint=t, order=order, name=str(name), rel_error=float(rel_error),
-                   sh_rel_error=float(sh_rel_error))
+                   sh_rel_error=float(sh_rel_error), factor_order=factor_order)
 
     def save(self, path: str | os.PathLike[str]) -> int:
         """Write ``u``, ``w``, ``tint`` (float32) and metadata as an uncompressed ``.npz``, atomically.
@@ -115,7 +123,7 @@ class RPO:
                 np.savez(f, u=self.u.astype(np.float32), w=self.w.astype(np.float32),
                          tint=self.tint.astype(np.float32),
                          meta=np.array([RPO_FORMAT_VERSION, self.order, self.rel_error, self.sh_rel_error]),
-                         name=np.array(self.name))
+                         name=np.array(self.name), factor_order=np.array(self.factor_order))
                 f.flush()
                 os.fsync(f.fileno())
         return p.stat().st_size
@@ -129,12 +137,13 @@ class RPO:
         try:
             with np.load(p, allow_pickle=False) as z:
                 u, w, tint, meta, name = z["u"], z["w"], z["tint"], z["meta"], str(z["name"])
+                order_by = str(z["factor_order"]) if "factor_order" in z.files else "before"
         except (KeyError, ValueError, OSError) as exc:
             raise DamagedArtifact(f"{p.name}: not an RPO file ({type(exc).__name__}: {exc})".splitlines()[0]) from None
         if meta.shape != (4,) or int(meta[0]) != RPO_FORMAT_VERSION:
             raise StaleArtifact(f"{p.name}: unsupported RPO file version")
         try:
-            rpo = cls.from_factors(u, w, tint, name, float(meta[2]), float(meta[3]))
+            rpo = cls.from_factors(u, w, tint, name, float(meta[2]), float(meta[3]), order_by)
         except PrtError as exc:  # factors that do not fit together (shapes, NaN): a damaged file
             raise DamagedArtifact(str(exc)) from None
         if rpo.order != int(meta[1]):
@@ -143,12 +152,16 @@ class RPO:
 
 
 def build_rpo(brdf: BRDF, order: int = 4, k: int = DEFAULT_TERMS, n_theta: int = DEFAULT_N_THETA,
-              n_phi: int = DEFAULT_N_PHI, name: str | None = None) -> RPO:
-    """Tabulate, factor (``k`` terms), project to SH (order ``n``) and build an :class:`RPO`.
+              n_phi: int = DEFAULT_N_PHI, name: str | None = None, factor_order: str = DEFAULT_FACTOR_ORDER,
+              quiet: bool = False) -> RPO:
+    """Tabulate, factor (``k`` terms, SVD ``factor_order`` the SH projection: :func:`prt_torch.brdf.factor.factor_sh`)
+    and build an :class:`RPO` of SH order ``n``.
 
-    ``rel_error`` is the SVD truncation error, ``sh_rel_error`` the error of the SH-projected
-    factorisation over (sphere of ``wi``) x (hemisphere of ``wo``); ``meta["seconds"]`` the build time.
+    ``rel_error`` is the SVD truncation error (in the norm of that order), ``sh_rel_error`` the error of the
+    SH-projected factorisation over (sphere of ``wi``) x (hemisphere of ``wo``); ``meta``: ``seconds`` (build time),
+    ``operator_error`` (vs the untruncated order-``n`` operator). ``quiet``: no warning for ``"after"`` with ``k > C``.
     """
+    check_factor_order(factor_order)
     check_order(order, MAX_PRODUCT_ORDER)
     if not isinstance(brdf, BRDF):
         raise PrtError(f"build_rpo needs a BRDF, got {type(brdf).__name__}")
@@ -158,13 +171,13 @@ def build_rpo(brdf: BRDF, order: int = 4, k: int = DEFAULT_TERMS, n_theta: int =
     # single-threaded BLAS: the randomized SVD's small QR/LU/SVD steps run ~5x slower when BLAS threads
     # contend for busy cores (measured on the 2-core CI machine), and one core is plenty for 1152^2 tables
     with threadpool_limits(limits=1):
-        dirs, _ = hemisphere_rule(n_theta, n_phi)
+        dirs, wts = hemisphere_rule(n_theta, n_phi)
         table = tabulate(brdf, dirs, dirs)
-        factors = factor_brdf(brdf, k, n_theta, n_phi, table=table)
-        u, w = project_factors(factors, order)
-        sh_err = sh_factor_error(factors, u, w, table)
-    rpo = RPO.from_factors(u, w, brdf.tint, name or brdf.name, factors.rel_error, sh_err)
+        sf = factor_sh(brdf, order, k, factor_order, n_theta, n_phi, table=table, quiet=quiet)
+        sh_err = sh_rule_error(dirs, wts, dirs, wts, sf.u, sf.w, table)
+    rpo = RPO.from_factors(sf.u, sf.w, brdf.tint, name or brdf.name, sf.rel_error, sh_err, factor_order)
     rpo.meta["seconds"] = time.perf_counter() - t0
+    rpo.meta["operator_error"] = sf.operator_error
     return rpo
 
 
@@ -190,12 +203,21 @@ def builtin_brdf(name: str) -> BRDF:
     return CATALOGUE[name]()  # type: ignore[operator]
 
 
+def rpo_key_text(brdf: object, order: int, k: int, factor_order: str = DEFAULT_FACTOR_ORDER) -> str:
+    """The text an RPO built by :func:`build_rpo` is content-addressed by (hash it): the file format, the BRDF with
+    all its parameters, ``order``, ``k``, the hemisphere rule and the factorisation order (``"before"`` adds
+    nothing, so caches written before the option existed stay valid)."""
+    check_factor_order(factor_order)
+    text = f"{RPO_FORMAT_VERSION}:{brdf!r}:{int(order)}:{int(k)}:{DEFAULT_N_THETA}x{DEFAULT_N_PHI}"
+    return text if factor_order == "before" else f"{text}:{factor_order}"
+
+
 def builtin_rpo(name: str, order: int = 4, k: int = DEFAULT_TERMS, cache_dir: str | os.PathLike[str] | None = None,
-                use_cache: bool = True) -> RPO:
+                use_cache: bool = True, factor_order: str = DEFAULT_FACTOR_ORDER) -> RPO:
     """A catalogue RPO, loaded from ``cache_dir`` (default :func:`default_cache_dir`) or built (< 3 s)."""
     brdf = builtin_brdf(name)
     check_order(order, MAX_PRODUCT_ORDER)
-    key = hashlib.sha256(f"{RPO_FORMAT_VERSION}:{brdf!r}:{order}:{k}:{DEFAULT_N_THETA}x{DEFAULT_N_PHI}".encode())
+    key = hashlib.sha256(rpo_key_text(brdf, order, k, factor_order).encode())
     path = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     path = path / f"{name}_n{order}_k{k}_{key.hexdigest()[:12]}.npz"
     if use_cache and path.is_file():
@@ -203,7 +225,7 @@ def builtin_rpo(name: str, order: int = 4, k: int = DEFAULT_TERMS, cache_dir: st
             return RPO.load(path)
         except (StaleArtifact, DamagedArtifact):
             pass  # a stale or damaged cache entry: rebuild it
-    rpo = build_rpo(brdf, order=order, k=k, name=name)
+    rpo = build_rpo(brdf, order=order, k=k, name=name, factor_order=factor_order)
     if use_cache:
         try:
             rpo.save(path)

@@ -169,13 +169,12 @@ def analytic_brdf(name: str, material: Material | None = None) -> Any:
 
 def material_rpo_key(material: Material, order: int, k: int) -> str:
     """Content address of the material's RPO: sha256 (first 16 hex digits) of the RPO file format, the BRDF
-    (:func:`material_brdf`, all its parameters), ``order``, ``k`` and the factorisation's hemisphere rule. Two
-    materials with the same roughness and metallic share it (the base colour does not enter the RPO)."""
-    from prt_torch.brdf.factor import DEFAULT_N_PHI, DEFAULT_N_THETA
-    from prt_torch.brdf.rpo import RPO_FORMAT_VERSION
+    (:func:`material_brdf`, all its parameters), ``order``, ``k``, the factorisation's hemisphere rule and its
+    default factorisation order (:func:`prt_torch.brdf.rpo.rpo_key_text`). Two materials with the same roughness and
+    metallic share it (the base colour does not enter the RPO)."""
+    from prt_torch.brdf.rpo import rpo_key_text
 
-    text = f"{RPO_FORMAT_VERSION}:{material_brdf(material)!r}:{int(order)}:{int(k)}:{DEFAULT_N_THETA}x{DEFAULT_N_PHI}"
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    return hashlib.sha256(rpo_key_text(material_brdf(material), order, k).encode()).hexdigest()[:16]
 
 
 def material_rpo_file(material: Material, order: int, k: int, run: Any = None,
