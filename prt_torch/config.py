@@ -2,7 +2,8 @@
 
 A config has sections owned by the stage that reads them::
 
-    name: builtin                 # run name; artifacts go to runs/<name>/ unless run_dir is set
+    name: builtin                 # run name; artifacts go to runs/<name>/ of the project unless run_dir is set
+    run_dir: ../runs/x            # optional; a relative path is read against the config file's folder
     character: {...}              # prt_torch.rig.config.CharacterConfig
     bake: {...}                   # prt_torch.bake.config.BakeConfig
     train: {...}                  # prt_torch.fit.config.TrainConfig
@@ -12,6 +13,15 @@ A config has sections owned by the stage that reads them::
 
 Unknown keys anywhere are errors (``extra="forbid"``); :func:`load_config` turns any validation
 problem into a one-line :class:`prt_torch.PrtError` naming the key.
+
+Where paths point (one rule, :meth:`RunConfig.resolve`; the working directory never matters): every relative
+path in a config file (``character.source``, motions, ``train.dataset``, ``run_dir``) is read against the config
+file's folder. Without ``run_dir`` the run directory is ``runs/<name>`` in the config's project, the nearest
+folder at or above the config's that holds a :data:`PROJECT_MARKERS` entry (else the config's folder): so
+``configs/builtin.yaml`` of a checkout always means ``<checkout>/runs/builtin``. A command line's ``--run-dir``
+is a command-line path (read against the working directory). :func:`load_config` warns (one line) when the run
+directory the working directory used to give (``./runs/<name>``, ``./<run_dir>``) exists and the config's
+does not, so that no run is silently left behind.
 """
 
 from __future__ import annotations
@@ -27,10 +37,22 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from prt_torch import limits as L
 from prt_torch.bake.config import BakeConfig
 from prt_torch.cloth.config import ClothConfig
-from prt_torch.errors import PrtError
+from prt_torch.errors import PrtError, warn
 from prt_torch.fit.config import TrainConfig
 from prt_torch.rig.config import CharacterConfig
 from prt_torch.scene.config import SceneConfig
+
+#: a folder holding one of these is a project root: a config's default run directory is ``runs/<name>`` there
+PROJECT_MARKERS = ("pyproject.toml", ".git")
+
+
+def project_root(folder: Path) -> Path:
+    """The nearest folder at or above ``folder`` (absolute) that holds a :data:`PROJECT_MARKERS` entry, else
+    ``folder`` itself."""
+    for f in (folder, *folder.parents):
+        if any((f / m).exists() for m in PROJECT_MARKERS):
+            return f
+    return folder
 
 
 class RunConfig(BaseModel):
@@ -74,8 +96,8 @@ class RunConfig(BaseModel):
     @field_validator("run_dir")
     @classmethod
     def _run_dir(cls, v: Path | None) -> Path | None:
-        if v is not None:
-            check_run_dir(v)
+        if v is not None and Path(os.path.expanduser(v)).is_absolute():  # a relative one: config_from_dict
+            check_run_dir(os.path.expanduser(v))
         return v
 
     @model_validator(mode="before")
@@ -105,15 +127,21 @@ class RunConfig(BaseModel):
 
     def resolve(self, p: str | Path) -> Path:
         """Resolve a path from the config relative to the config file's directory."""
-        p = Path(p).expanduser()
+        p = Path(os.path.expanduser(p))  # an unknown ~user stays as written
         if p.is_absolute() or self.base_dir is None:
             return p
         return (self.base_dir / p).resolve()
 
     @property
     def out_dir(self) -> Path:
-        """``runs/<name>`` (relative to the working directory) unless ``run_dir`` is set."""
-        return self.run_dir if self.run_dir is not None else Path("runs") / self.name
+        """The run directory: ``run_dir`` when set (:func:`load_config` has read a relative one against the config
+        file's folder), else ``runs/<name>`` in the config's :func:`project_root` (in the working directory for a
+        config that is not from a file)."""
+        if self.run_dir is not None:
+            return self.run_dir
+        if self.base_dir is None:
+            return Path("runs") / self.name
+        return project_root(self.base_dir) / "runs" / self.name
 
 
 def check_run_dir(path: str | os.PathLike[str], what: str = "run_dir") -> Path:
@@ -166,6 +194,12 @@ def config_from_dict(data: dict[str, Any], source: str = "config", base_dir: Pat
     except RecursionError:
         raise PrtError(f"{source}: config nested too deeply (at most {L.MAX_CONFIG_DEPTH} levels)") from None
     cfg.base_dir = base_dir
+    if cfg.run_dir is not None:
+        cfg.run_dir = cfg.resolve(cfg.run_dir)  # ~ expanded; a relative one against the config's folder
+        try:
+            check_run_dir(cfg.run_dir)
+        except PrtError as exc:
+            raise PrtError(_one_line(f"{source}: bad value for 'run_dir': {exc}", 600)) from None
     return cfg
 
 
@@ -232,8 +266,10 @@ def parse_yaml(text: str, source: str = "config") -> Any:
             loader.dispose()
 
 
-def load_config(path: str | Path) -> RunConfig:
-    """Read and validate a YAML run config (UTF-8, at most :data:`~prt_torch.limits.MAX_CONFIG_BYTES`)."""
+def load_config(path: str | Path, run_dir: str | Path | None = None) -> RunConfig:
+    """Read and validate a YAML run config (UTF-8, at most :data:`~prt_torch.limits.MAX_CONFIG_BYTES`); its
+    relative paths are read against its folder (module docstring). ``run_dir``: a command line's ``--run-dir``
+    (read against the working directory), which replaces the config's."""
     path = Path(path)
     try:
         if not path.is_file():
@@ -254,4 +290,24 @@ def load_config(path: str | Path) -> RunConfig:
     except UnicodeDecodeError as exc:
         raise PrtError(f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
     data = parse_yaml(text, source=str(path))
-    return config_from_dict(data, source=str(path), base_dir=path.parent.resolve())
+    cfg = config_from_dict(data, source=str(path), base_dir=path.parent.resolve())
+    if run_dir is not None:
+        cfg.run_dir = Path(run_dir)
+    else:
+        _warn_left_behind(cfg, data.get("run_dir"))
+    return cfg
+
+
+def _warn_left_behind(cfg: RunConfig, written: Any) -> None:
+    """Warn when the run directory the working directory gave before the config-relative rule (``written``, the
+    file's ``run_dir``, or ``runs/<name>``) exists and the config's :attr:`RunConfig.out_dir` does not."""
+    old = Path(os.path.expanduser(written)) if isinstance(written, str) else Path("runs") / cfg.name
+    new = cfg.out_dir
+    try:
+        if old.is_absolute() or old.resolve() == new.resolve() or not old.is_dir() or new.exists():
+            return
+    except (OSError, ValueError):  # an unusable path: validation has named it already where it matters
+        return
+    rule = "read against the config's folder" if written is not None else "runs/<name> of the config's project"
+    warn(f"{old} (under the working directory) is not this config's run directory: that is {new} ({rule}); "
+         f"move the run there, or pass --run-dir {old} to use it")

@@ -25,7 +25,7 @@ def test_shipped_configs_validate(name: str) -> None:
         return
     cfg = load_config(path)
     assert cfg.name and cfg.bake.order >= 1
-    assert cfg.out_dir == Path("runs") / cfg.name or cfg.run_dir is not None
+    assert cfg.out_dir == REPO / "runs" / cfg.name or cfg.run_dir is not None  # the checkout's, from any cwd
 
 
 @pytest.mark.parametrize(

@@ -42,13 +42,13 @@ def _config(args: argparse.Namespace) -> object:
 def run(args: argparse.Namespace) -> int:
     import time
 
-    from rich.console import Console
     from rich.table import Table
 
     from prt_torch import limits
     from prt_torch.cloth.engine import Engine
     from prt_torch.cloth.simulate import simulate_sequence
     from prt_torch.cloth.subject import ClothSubject
+    from prt_torch.progress import make_console
 
     limits.check_int(args.frames, "--frames", 1, 10_000)
     base = _config(args)
@@ -87,6 +87,6 @@ def run(args: argparse.Namespace) -> int:
     for row in rows:
         t.add_row(*(str(row[k]) for k in ("resolution", "vertices", "build_s", "substeps", "steps_per_s",
                                            "frames_per_s")))
-    Console().print(t)
-    Console().print(f"2k / 7.7k steps/s: {ratio:.2f}x")
+    make_console().print(t)
+    make_console().print(f"2k / 7.7k steps/s: {ratio:.2f}x")
     return 0

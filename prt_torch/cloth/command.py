@@ -19,12 +19,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import time
 
-    from rich.console import Console
-
     from prt_torch.cloth.cache import VertexCache
     from prt_torch.cloth.simulate import simulate
     from prt_torch.commands import _validate as V
     from prt_torch.errors import PrtError
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
 
     cfg = V.run_config(args.config, args.run_dir)
@@ -39,6 +38,6 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
-        Console(stderr=True).print(f"simulated {len(summary['sequences'])} sequences ({cache.n_vertices} vertices) "
-                                   f"in {summary['seconds']:.1f} s -> {path}")
+        make_console(stderr=True).print(f"simulated {len(summary['sequences'])} sequences ({cache.n_vertices} "
+                                        f"vertices) in {summary['seconds']:.1f} s -> {path}")
     return 0

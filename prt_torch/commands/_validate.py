@@ -96,10 +96,7 @@ def run_config(config: str | Path, run_dir_option: str | None) -> RunConfig:
 
     if run_dir_option is not None:
         run_dir(run_dir_option, "--run-dir")
-    cfg = load_config(config)
-    if run_dir_option:
-        cfg.run_dir = Path(run_dir_option)
-    return cfg
+    return load_config(config, run_dir=run_dir_option or None)
 
 
 def names(text: str, option: str, allowed: tuple[str, ...] | list[str] | None = None, what: str = "name") -> list[str]:

@@ -21,12 +21,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.bake.runner import run_bake
     from prt_torch.commands import _validate as V
     from prt_torch.errors import PrtError
+    from prt_torch.progress import make_console
 
     if args.workers is not None:
         limits.check_int(args.workers, "--workers", 1, limits.MAX_WORKERS)
@@ -43,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
-        Console(stderr=True).print(
+        make_console(stderr=True).print(
             f"baked {res.frames} frames ({res.skipped} already done) in {res.seconds:.1f} s: "
             f"{res.frames_per_s:.2f} frames/s, {res.rays_per_s / 1e6:.2f} Mrays/s -> {res.path}")
     return 0

@@ -37,7 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
-    from rich.console import Console
     from threadpoolctl import threadpool_limits
 
     from prt_torch import limits
@@ -48,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.bake.store import open_dataset
     from prt_torch.bake.trace import RaySet
     from prt_torch.config import config_from_dict
+    from prt_torch.progress import make_console
     from prt_torch.rig.vertex_frames import vertex_frames
 
     limits.check_float(args.density, "--density", limits.MIN_DENSITY, limits.MAX_DENSITY)
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     limits.check_bake_task_memory(4, int(limits.BUILTIN_VERTICES_PER_DENSITY * args.density) + 1, args.order,
                                   what="--density")
     workers = args.workers or os.cpu_count() or 1
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     with tempfile.TemporaryDirectory(prefix="prt-bench-bake-") as tmp:
         def config(name: str) -> dict:
             return {"name": name, "run_dir": str(Path(tmp) / name),

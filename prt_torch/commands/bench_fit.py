@@ -61,7 +61,6 @@ def _measured(fn: Callable[[], Any]) -> tuple[Any, dict[str, float]]:
 
 def run(args: argparse.Namespace) -> int:
     import torch
-    from rich.console import Console
     from threadpoolctl import threadpool_limits
 
     from prt_torch import limits
@@ -72,12 +71,13 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.fit.device import DEVICES, fit_device, resolve_device
     from prt_torch.fit.inputs import load_skinning
     from prt_torch.fit.kinds import fit_mlp_kind, fit_ridge_kind, reduce_training
+    from prt_torch.progress import make_console
 
     if args.max_iter is not None:
         limits.check_int(args.max_iter, "--max-iter", 1, limits.MAX_ITERATIONS)
     if args.dataset is not None:
         V.input_path(args.dataset, "--dataset")
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     cfg = load_config(args.config).train if args.config else TrainConfig()
     if args.max_iter:
         cfg = cfg.model_copy(update={"max_iter": args.max_iter})

@@ -115,14 +115,13 @@ def run(args: argparse.Namespace) -> int:
         from prt_torch.commands.bench_play_deformable import run as run_deformable
 
         return run_deformable(args)
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.commands import _validate as V
     from prt_torch.errors import PrtError, check
     from prt_torch.export.graphs import PRECISIONS
     from prt_torch.export.onnx_file import initializer_bytes, weight_macs
     from prt_torch.player import Player
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
 
     limits.check_int(args.frames, "--frames", 5, limits.MAX_FRAMES)
@@ -149,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     V.input_dir(args.run, "run directory")
     if args.scaling:
         V.output_file(args.plot, "--plot")
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     run_dir = Path(args.run)
     run = RunDir(run_dir)
     kw = {"brdf": args.brdf, "threads": args.threads, "device": args.device}
@@ -662,8 +661,9 @@ def _plot(out: dict[str, Any], path: Path) -> None:
 
 
 def _print_tables(out: dict[str, Any]) -> None:
-    from rich.console import Console
     from rich.table import Table
+
+    from prt_torch.progress import make_console
 
     m = out["machine"]
     t = Table(title=f"prt bench play: {out['run']} ({out['n_vertices']} vertices, order {out['sh_order']}, "
@@ -706,4 +706,4 @@ def _print_tables(out: dict[str, Any]) -> None:
         for r in out["scaling"]["vertices"]:
             t.add_row(f"scaling: {r['n_vertices']} vertices (pose + fused)", f"{r['frame_ms']:.3f}",
                       f"{r['bound_ms']:.3f}", f"{r['fraction']:.2f}", "", f"{r['bytes_model'] / 1e6:.2f}", "")
-    Console().print(t)
+    make_console().print(t)

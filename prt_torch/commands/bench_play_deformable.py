@@ -70,14 +70,13 @@ def _positions_graphs(run: Any, precisions: list[str], tmp: Path, threads: int, 
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.cloth.player import DeformablePlayer
     from prt_torch.commands.roofline import bound, copy_bandwidth, gemm_rate, step_costs
     from prt_torch.errors import check
     from prt_torch.export.graphs import PRECISIONS
     from prt_torch.export.onnx_file import initializer_bytes, weight_macs
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
 
     limits.check_int(args.frames, "--frames", 5, limits.MAX_FRAMES)
@@ -87,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     precisions = [p.strip() for p in args.precisions.split(",") if p.strip()]
     for p in precisions:
         check(p in PRECISIONS, f"--precisions: unknown precision {p!r} (expected {list(PRECISIONS)})")
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     run_dir = RunDir(args.run)
     local_meta = run_dir.export_meta().get("local")
     local_kind = local_meta.get("kind") if isinstance(local_meta, dict) else None  # the shipped local network's

@@ -52,14 +52,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.commands import _validate as V
     from prt_torch.player import Player
     from prt_torch.player.peaks import check_peaks_arg
     from prt_torch.player.scene import SCENE_STEPS, ScenePlayer
     from prt_torch.player.timing import FrameTimer
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
     from prt_torch.scene.config import scene_from_dict
     from prt_torch.scene.load import load_scene
@@ -73,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     two = load_scene(scene_path)
     run_dir = RunDir(args.run)
     clip = args.clip or _heldout_clip(run_dir)
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     if args.characters is not None:
         limits.check_int(args.characters, "--characters", 1, 64)
         return _bench_grid(run_dir, clip, args, peaks, console)

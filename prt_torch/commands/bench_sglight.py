@@ -60,12 +60,12 @@ def _synthetic() -> object:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
     from rich.table import Table
     from threadpoolctl import threadpool_limits
 
     from prt_torch.errors import PrtError
     from prt_torch.light.envmap import load_envmap
+    from prt_torch.progress import make_console
     from prt_torch.sg.lighting import MAX_LEVEL, detect_peaks, fit_envmap_sg, require_healpy
 
     require_healpy()
@@ -108,5 +108,5 @@ def run(args: argparse.Namespace) -> int:
         t.add_row(r["map"], r["size"], r["method"], f"{r['ms']:.1f}", f"{r['ratio_to_sh4']:.1f}",
                   f"{r['per_second']:.2f}", str(r.get("lobes", "")), str(r.get("peaks", "")),
                   f"{r['rel_error']:.4f}" if "rel_error" in r else "")
-    Console().print(t)
+    make_console().print(t)
     return 0

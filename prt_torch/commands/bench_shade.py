@@ -47,13 +47,13 @@ def _best(fn: Callable[[], object], repeat: int) -> float:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
-    from rich.console import Console
     from rich.table import Table
 
     from prt_torch import limits
     from prt_torch.brdf.analytic import Phong
     from prt_torch.brdf.rpo import build_rpo
     from prt_torch.errors import PrtError
+    from prt_torch.progress import make_console
     from prt_torch.sh.product import MAX_PRODUCT_ORDER
     from prt_torch.shade.lobes import rotate_lobes_to_frames
     from prt_torch.shade.rpo_shading import RPOTensors, shade_rpo
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     limits.check_array_memory(args.vertices * (3 * c * c + 3 * args.k * c + 8 * c + 16) * 4 * 2,
                               f"bench shade with --vertices {args.vertices} at --order {args.order}")
     torch.set_num_threads(args.threads)
-    err = Console(stderr=True)
+    err = make_console(stderr=True)
     with err.status("building the RPO", spinner="dots"):
         rpo = build_rpo(Phong(exponent=16.0, kd=0.3, ks=0.7), order=args.order, k=args.k, n_theta=16, n_phi=32)
     t = RPOTensors.from_rpo(rpo, torch.float32)
@@ -123,6 +123,6 @@ def run(args: argparse.Namespace) -> int:
     for m in times:
         table.add_row(m, f"{times[m] * 1e3:.2f}", f"{V / times[m] / 1e6:.2f}", f"{ratios[m]:.2f}",
                       f"{max_diff[m]:.1e}" if m in max_diff else "-")
-    Console().print(table)
+    make_console().print(table)
     _ = np  # numpy is imported for the RPO build
     return 0

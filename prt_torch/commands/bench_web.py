@@ -50,15 +50,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.commands import _validate as V
+    from prt_torch.progress import make_console
 
     limits.check_int(args.characters, "--characters", 1, 64)
     limits.check_int(args.frames, "--frames", 1, 10_000)
     V.input_dir(args.run, "run directory")
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     if args.site is not None:
         V.input_dir(args.site, "--site")
         out = bench_site(args.site, args.characters, args.frames, not args.no_peaks, args.chromium, args.decode)

@@ -44,13 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.commands import _validate as V
     from prt_torch.compare.methods import METHODS
     from prt_torch.compare.run import run_compare, table_markdown
     from prt_torch.errors import PrtError
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
 
     methods = V.names(args.methods, "--methods", tuple(METHODS), what="method") if args.methods is not None else None
@@ -86,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     if args.light == "smooth" and peaks not in ("auto", 0):
         raise PrtError(f"--peaks {peaks}: --light smooth has no peak light (use --light sky or sun)")
     V.input_dir(args.run, "run directory")
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     result = run_compare(args.run, methods=methods, clip=args.clip, max_frames=args.frames, env=args.env,
                          image_frames=args.image_frames, reference_frames=args.reference_frames,
                          reference_rays=args.reference_rays, threads=args.threads, log=console.log,

@@ -47,8 +47,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.bake.runner import bake
     from prt_torch.brdf.rpo import CATALOGUE
@@ -58,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.export.run import DEFAULT_BRDFS, export_run
     from prt_torch.fit.train import train_dataset, train_key
     from prt_torch.io import atomic_write_json
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
 
     # every argument is checked before anything is baked or written
@@ -72,12 +71,10 @@ def run(args: argparse.Namespace) -> int:
         V.input_file(args.env, "--env")
     if args.run_dir is not None:
         V.run_dir(args.run_dir, "--run-dir")
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     t_all = time.perf_counter()
     cfg_path = Path(args.config) if args.config else default_config()
-    cfg = load_config(cfg_path)
-    if args.run_dir:
-        cfg.run_dir = Path(args.run_dir)
+    cfg = load_config(cfg_path, run_dir=args.run_dir or None)
     if not cfg.character.heldout_clips:
         raise PrtError(f"{cfg_path}: the demo needs a held-out clip (character.heldout_clips)")
     run = RunDir(cfg.out_dir)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 HELP = "Evaluate a trained run on held-out clips (shipping-path shading, image PSNR, jitter, storage); writes a report."
 
@@ -27,12 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
     from prt_torch.errors import PrtError
     from prt_torch.eval.evaluate import evaluate_run
     from prt_torch.eval.report import json_summary, write_report, write_results
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
 
     run_dir = Path(args.run)
@@ -57,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     if not run_dir.is_dir():
         raise PrtError(f"run directory not found: {run_dir}")
     run_d = RunDir(run_dir)
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     ev = evaluate_run(run_d, dataset=args.dataset, max_frames=args.frames, train_frames=args.train_frames or None,
                       lights=lights, image_frames=image_frames, log=console.log, progress=not args.json)
     if args.no_report:
@@ -70,29 +69,41 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(json_summary(r), indent=2, sort_keys=True))
         return 0
-    frames = ", ".join(f"{s}: {n} frames{' (subsampled)' if s == 'train' and r['train_subsampled'] else ''}, "
-                       f"{r['image_frames'].get(s, 0)} rendered" for s, n in r["frames"].items())
-    t = Table(title=f"prt eval {run_dir} ({frames}); image PSNR dB (character pixels), player's sky, "
-                    "exact / lobes lighting")
-    for col in ("model", "split", "frames", "vis_rel_err", "jitter", "diffuse exact", "diffuse lobes",
-                "glossy exact", "glossy lobes", "rel RMSE glossy lobes"):
-        t.add_column(col, justify="right" if col not in ("model", "split") else "left")
-
-    def f(x: float | None, spec: str = ".2f") -> str:
-        return "-" if x is None else ("inf" if x == float("inf") else format(x, spec))
-
-    for kind, splits in r["models"].items():
-        for split, m in splits.items():
-            sky = m["shading"].get(r["player_light"]) or next(iter(m["shading"].values()))
-            cells = [f(sky.get(b, {}).get(p, {}).get("psnr_image")) for b in ("lambert", "phong")
-                     for p in ("exact", "lobes")]
-            t.add_row(kind, split, str(m["frames"]), f(m["vis_rel_err"], ".4f"), f(m["jitter"], ".4f"), *cells,
-                      f(sky.get("phong", {}).get("lobes", {}).get("radiance_rel_rmse"), ".4f"))
-    console.print(t)
+    console.print(results_table(r, run_dir))
     lf = r.get("lobe_fit", {}).get("heldout", {})
     if lf:
         console.print("lobe fit alone (held-out truth, lobes vs exact, image PSNR dB): " + ", ".join(
-            f"{ln}/{bn} {f(m['psnr_image'])}" for ln, b in lf.items() for bn, m in b.items()))
+            f"{ln}/{bn} {_cell(m['psnr_image'])}" for ln, b in lf.items() for bn, m in b.items()))
     if index is not None:
         console.print(f"report: {index}")
     return 0
+
+
+#: ``prt eval``'s table: one row per model and split; the image PSNR columns are BRDF (diffuse = lambert, glossy =
+#: phong) x lighting (the exact environment, its lobe fit) under the player's light
+HEADERS = ("model", "split", "frames", "vis rel err", "jitter", "diffuse exact", "diffuse lobes", "glossy exact",
+           "glossy lobes", "glossy lobes rel RMSE")
+
+
+def _cell(x: float | None, spec: str = ".2f") -> str:
+    """A number of the table: ``-`` when absent, ``inf`` for a perfect PSNR."""
+    return "-" if x is None else ("inf" if x == float("inf") else format(x, spec))
+
+
+def results_table(r: dict, run_dir: str | Path) -> Any:
+    """The ``rich`` table of an evaluation's results ``r`` (:attr:`prt_torch.eval.evaluate.Evaluation.results`),
+    :data:`HEADERS`: readable at 80 columns (:func:`prt_torch.progress.fitted_table`)."""
+    from prt_torch.progress import fitted_table
+
+    frames = ", ".join(f"{s}: {n} frames{' (subsampled)' if s == 'train' and r['train_subsampled'] else ''}, "
+                       f"{r['image_frames'].get(s, 0)} rendered" for s, n in r["frames"].items())
+    rows = []
+    for kind, splits in r["models"].items():
+        for split, m in splits.items():
+            sky = m["shading"].get(r["player_light"]) or next(iter(m["shading"].values()))
+            cells = [_cell(sky.get(b, {}).get(p, {}).get("psnr_image")) for b in ("lambert", "phong")
+                     for p in ("exact", "lobes")]
+            rows.append([kind, split, str(m["frames"]), _cell(m["vis_rel_err"], ".4f"), _cell(m["jitter"], ".4f"),
+                         *cells, _cell(sky.get("phong", {}).get("lobes", {}).get("radiance_rel_rmse"), ".4f")])
+    return fitted_table(HEADERS, rows, left=2, title=f"prt eval {run_dir} ({frames}); image PSNR dB (character "
+                                                     "pixels), player's sky, exact / lobes lighting")

@@ -28,18 +28,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.brdf.rpo import CATALOGUE
     from prt_torch.commands import _validate as V
     from prt_torch.export.run import DEFAULT_BRDFS, export_run
+    from prt_torch.progress import make_console
 
     limits.check_int(args.terms, "--terms", 1, limits.MAX_TERMS)
     limits.check_int(args.opset, "--opset", limits.MIN_OPSET, limits.MAX_OPSET)
     brdfs = (tuple(V.names(args.brdfs, "--brdfs", tuple(CATALOGUE), what="BRDF")) if args.brdfs is not None
              else DEFAULT_BRDFS)
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     run_dir = Path(args.run)
     if run_dir.suffix in (".yaml", ".yml"):
         from prt_torch.config import load_config

@@ -68,9 +68,9 @@ def run(args: argparse.Namespace) -> int:
         raise PrtError("--sun-radius goes with --peaks")
     if args.lobes is not None and not 1 <= args.lobes <= 16:
         raise PrtError(f"--lobes must be in 1..16, got {args.lobes}")
-    from rich.console import Console
+    from prt_torch.progress import make_console
 
-    err = Console(stderr=True)
+    err = make_console(stderr=True)
     with err.status(f"projecting {args.file} to order {args.order}", spinner="dots") if not args.json \
             else _null():
         env = load_envmap(args.file, layout=args.layout)
@@ -137,10 +137,11 @@ def _fit_sg(args: argparse.Namespace, env: object, err: object) -> object:
 
 
 def _print_sg(fit: object) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    con = Console()
+    from prt_torch.progress import make_console
+
+    con = make_console()
     t = Table(title=f"SG lighting: {len(fit.lobes)} lobes, multiscale HEALPix fit in "  # type: ignore[attr-defined]
               f"{fit.seconds['total']:.2f} s (world frame, z up)")  # type: ignore[attr-defined]
     for col in ("scale", "nside", "sharpness", "lobes", "rel. residual"):
@@ -210,14 +211,15 @@ def _run_peaks(args: argparse.Namespace) -> int:
         json.dump(out, sys.stdout)
         sys.stdout.write("\n")
         return 0
-    from rich.console import Console
     from rich.table import Table
 
     from prt_torch.light.envmap import LUMA
+    from prt_torch.progress import make_console
 
-    con = Console()
-    t = Table(title=f"{args.file}: {env.layout} {w}x{h}, {len(split.peaks)} peak light(s) of at most {k} "
-              "(world frame, z up; azimuth from +x toward +y)")
+    con = make_console()
+    con.print(f"{args.file}: {env.layout} {w}x{h}, {len(split.peaks)} peak light(s) of at most {k} "
+              "(world frame, z up; azimuth from +x toward +y)", soft_wrap=True)  # a line, whole
+    t = Table()
     for col in ("#", "direction (x, y, z)", "elev., azim. (deg)", "radius (deg)", "solid angle (sr)",
                 "radiance (R, G, B)", "share"):
         t.add_column(col, justify="right")
@@ -230,7 +232,7 @@ def _run_peaks(args: argparse.Namespace) -> int:
     total = float(split.total_power() @ LUMA)
     con.print(f"residual: power (R, G, B) {', '.join(f'{x:.4g}' for x in res_power)}, "
               f"{float(res_power @ LUMA) / total if total > 0 else 0.0:.1%} of the luminous power; "
-              f"energy (peaks + residual vs map) {', '.join(f'{x:+.1e}' for x in err_rel)}")
+              f"energy (peaks + residual vs map) {', '.join(f'{x:+.1e}' for x in err_rel)}", soft_wrap=True)
     return 0
 
 
@@ -243,10 +245,11 @@ class _null:
 
 
 def _print_tables(args: argparse.Namespace, layout: str, w: int, h: int, sh: object, lobes: object) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    con = Console()
+    from prt_torch.progress import make_console
+
+    con = make_console()
     t = Table(title=f"{args.file}: {layout} {w}x{h}, SH order {args.order} (world frame, z up)")
     for col in ("i", "l", "m", "R", "G", "B"):
         t.add_column(col, justify="right")

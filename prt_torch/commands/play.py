@@ -125,12 +125,12 @@ def run(args: argparse.Namespace) -> int:
         return _play_scene(args, h, w)
 
     import numpy as np
-    from rich.console import Console
 
     from prt_torch.player.render import has_display
     from prt_torch.player.renderers import renderer
+    from prt_torch.progress import make_console
 
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     show = args.out is None and args.png is None
     if show and not has_display():
         raise PrtError("no display: pass --out video.mp4 or --png DIR to render offscreen")
@@ -179,11 +179,11 @@ def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
     (:class:`~prt_torch.cloth.player.DeformablePlayer`, graph ``pipeline`` (default), ``split`` or
     ``overlap``)."""
     import numpy as np
-    from rich.console import Console
 
     from prt_torch.cloth.player import DeformablePlayer
     from prt_torch.errors import PrtError
     from prt_torch.player.render import has_display
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
 
     for flag, value in (("--clip", args.clip), ("--motion", args.motion), ("--scene", args.scene)):
@@ -203,7 +203,7 @@ def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
     # its fused graph (measured slower: the cluster order costs a permutation in and out) is DeformablePlayer(graph=
     # "fused")
     graph = "pipeline" if args.graph in (None, "fused") else args.graph
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     player = DeformablePlayer(args.run, env=args.env, brdf=args.brdf, graph=graph, threads=args.threads,
                               window_size=(h, w), device=args.device)
     visibility = "local network" if player.local_graph is not None else "dihedral angles + pose graph"
@@ -225,10 +225,9 @@ def _play_sequence(args: argparse.Namespace, h: int, w: int) -> int:
 
 def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
     """``--ground`` / ``--scene``: :class:`prt_torch.player.scene.ScenePlayer` (offscreen only)."""
-    from rich.console import Console
-
     from prt_torch.errors import PrtError
     from prt_torch.player.scene import ScenePlayer
+    from prt_torch.progress import make_console
     from prt_torch.rundir import RunDir
     from prt_torch.scene.load import load_scene
 
@@ -244,7 +243,7 @@ def _play_scene(args: argparse.Namespace, h: int, w: int) -> int:
     scene = load_scene(args.scene) if args.scene is not None else None
     run = RunDir(args.run)
     timings = args.timings or (run.timings_path(args.out) if args.out else run.play_timings)
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     clip: Any = args.clip  # a name the character has stays a name: each scene character looks it up in its own clips
     if clip is not None and clip not in (character := run.character()).clips:
         clip = _clip_of_run(run, character, clip)  # a split's clip (e.g. a held-out frame range of a clip)

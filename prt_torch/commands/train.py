@@ -21,15 +21,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from prt_torch.commands import _validate as V
     from prt_torch.config import load_config
     from prt_torch.errors import PrtError, check
     from prt_torch.fit.config import KINDS
     from prt_torch.fit.device import DEVICES, resolve_device
     from prt_torch.fit.train import dataset_of, train_dataset
-    from prt_torch.progress import progress_bar
+    from prt_torch.progress import make_console, progress_bar
     from prt_torch.rundir import RunDir
 
     kinds = V.names(args.kinds, "--kinds", KINDS, what="model kind") if args.kinds is not None else None
@@ -40,9 +38,7 @@ def run(args: argparse.Namespace) -> int:
         V.run_dir(args.run_dir, "--run-dir")
     if args.dataset is not None:
         V.input_path(args.dataset, "--dataset")
-    cfg = load_config(args.config)
-    if args.run_dir:
-        cfg.run_dir = Path(args.run_dir)
+    cfg = load_config(args.config, run_dir=args.run_dir or None)
     tcfg = cfg.train
     if kinds:
         tcfg = tcfg.model_validate({**tcfg.model_dump(), "kinds": kinds,
@@ -54,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     dataset = Path(args.dataset) if args.dataset else dataset_of(cfg)
     if not Path(dataset).exists():
         raise PrtError(f"dataset not found: {dataset} (run `prt bake` first, or pass --dataset)")
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     with progress_bar(counted=False, spinner=True, console=console, transient=True) as progress:
         metrics = train_dataset(dataset, run, tcfg, progress)
     if args.json:

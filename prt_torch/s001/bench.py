@@ -33,8 +33,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from prt_torch import limits
     from prt_torch.brdf.rpo import builtin_brdf
     from prt_torch.commands import _validate as V
@@ -42,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.compare.run import heldout_frames, load_compare_run
     from prt_torch.errors import check
     from prt_torch.player.lighting import load_lighting
+    from prt_torch.progress import make_console
     from prt_torch.s001.brdf_matrix import brdf_matrix, factor
     from prt_torch.s001.player import S001Player
     from prt_torch.s001.posespace import CompressedTransfer
@@ -95,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out, indent=2, sort_keys=True))
         return 0
-    con = Console()
+    con = make_console()
     con.print(f"{out['frames']} held-out frames, {out['n_vertices']} vertices, {out['n_clusters']} PCA clusters")
     for k, v in med.items():
         con.print(f"{k:16s} {v:9.2f} ms  {1e3 / v:8.1f} frames/s  x{out['ratio_to_s001'][k]:.2f} of s001")

@@ -45,7 +45,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import torch
-    from rich.console import Console
 
     from prt_torch import limits
     from prt_torch.blockers import SphereSet, pose_spheres
@@ -53,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.compare.methods import METHODS
     from prt_torch.compare.run import heldout_frames, load_compare_run
     from prt_torch.errors import check
+    from prt_torch.progress import make_console
     from prt_torch.scene.ground import make_ground
     from prt_torch.scene.occluders import ShexpGraph
     from prt_torch.shexp import shexp_visibility
@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     centers = pose_spheres(spheres, frame_skins(ctx, fs)).astype(np.float32)  # (F, S, 3)
     radii = np.broadcast_to(spheres.radius.astype(np.float32), centers.shape[:2]).copy()
     order = ctx.order
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     with tempfile.TemporaryDirectory(prefix="prt_bench_shexp_") as tmp:
         path = export_shexp(Path(tmp) / rd.shexp_path.name, order)
         graphs = {"ort": ShexpGraph(path, order, threads=args.threads)}

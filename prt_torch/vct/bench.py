@@ -40,7 +40,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
-    from rich.console import Console
 
     from prt_torch import limits
     from prt_torch.bake.embree import RayScene
@@ -48,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from prt_torch.compare.reference import light_spec, spec_envmap
     from prt_torch.errors import PrtError
     from prt_torch.metrics import evenly_spaced_indices
+    from prt_torch.progress import make_console
     from prt_torch.rig.builtin import make_character
     from prt_torch.sg.brdf_fit import fit_brdf_sg
     from prt_torch.sg.shading import sg_light_from_env
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise PrtError("--device cuda: no CUDA device")
     torch.set_num_threads(args.threads)
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
 
     ch = make_character(args.density)
     if args.clip not in ch.clips:
