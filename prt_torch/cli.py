@@ -35,6 +35,7 @@ COMMANDS: dict[str, str] = {
     "play": "prt_torch.commands.play",
     "compare": "prt_torch.commands.compare",
     "info": "prt_torch.commands.info",
+    "init": "prt_torch.commands.init",
     "bench": "prt_torch.commands.bench",
     "heightfield": "prt_torch.heightfield.command",
     "web": "prt_torch.commands.web",
