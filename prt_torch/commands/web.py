@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         print(f"site written: {out} ({manifest['n_vertices']} vertices, {len(manifest['clips'])} clips, "
               f"BRDFs {[r['name'] for r in manifest['rpos']]}, lights {[x['name'] for x in manifest['lights']]}; "
-              f"peaks {_peaks_summary(manifest)})")
+              f"peaks {_peaks_summary(manifest)}); the page opens on {_start_summary(manifest)}; pages: index.html "
+              f"(the player), example.html (two characters and three.js objects in one scene, the three.js module)")
     status = 0
     if args.check:
         from prt_torch.web.check import check_site
@@ -68,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
         from prt_torch.web.serve import SiteServer
 
         srv = SiteServer(out, args.port)
-        print(f"serving {out} at {srv.url} (127.0.0.1 only; Ctrl-C to stop)", flush=True)
+        print(f"serving {out} at {srv.url} (127.0.0.1 only; Ctrl-C to stop); the example scene: {srv.url}example.html",
+              flush=True)
         try:
             srv.serve_forever()
         except KeyboardInterrupt:
@@ -76,6 +78,12 @@ def run(args: argparse.Namespace) -> int:
         finally:
             srv.close()
     return status
+
+
+def _start_summary(manifest: dict) -> str:
+    """``"wave (held out of training ...), BRDF material"``: what the page opens on, and why that clip."""
+    st = manifest.get("start") or {}
+    return f"{st.get('clip')} ({st.get('clip_why')}), BRDF {st.get('brdf')}"
 
 
 def _peaks_summary(manifest: dict) -> str:

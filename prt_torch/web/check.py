@@ -74,7 +74,9 @@ class PageSession:
         return bool(self.page.evaluate("window.prt.ready.then(a => a !== null)"))
 
     def frame(self, state: dict[str, Any]) -> tuple[np.ndarray, dict[str, float]]:
-        """Set ``state`` (``window.prt.setState``), render one step; ``(H, W, 3)`` uint8 image, step timings."""
+        """Set ``state`` (``window.prt.setState``), render one step; ``(H, W, 3)`` uint8 image, step timings. The
+        camera is the fixed one (the Python player's ``pose`` eye) unless ``state`` says ``"camera": "follow"``."""
+        state = {"camera": "fixed", **state}
         self.page.evaluate("s => window.prt.setState(s)", state)
         stats = self.page.evaluate("window.prt.render()")
         px = self.page.evaluate("window.prt.readPixels()")

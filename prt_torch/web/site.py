@@ -2,12 +2,15 @@
 
 Site layout (every file written atomically)::
 
-    DIR/index.html, *.js, prt_shading.glsl       the page (copied from the repository's web/src)
+    DIR/index.html, *.js, prt_shading.glsl       the page (copied from the repository's web/src): prt-character.js
+                                                 is the three.js module (PRTCharacter) the page (main.js) and
+                                                 example.html (two characters in one three.js scene) are built on
     DIR/vendor/three/three.module.js, three.core.js           three.js (web/node_modules, pinned)
     DIR/vendor/ort/ort.wasm.min.mjs, ort-wasm-simd-threaded.{mjs,wasm}   onnxruntime-web, wasm backend
     DIR/assets/manifest.json                     sizes, names, conventions, lighting presets, camera, material,
                                                  the offset / dtype / shape of every array in data.bin, and the
                                                  size and sha256 of data.bin and of the model (the page checks both)
+                                                 and what the page opens on (``start``: :func:`start_entry`)
     DIR/assets/data.bin                          little-endian arrays (8-byte aligned), see SITE_ARRAYS
     DIR/assets/pose_to_visibility.onnx           the run's visibility graph, byte for byte (the page's decode when
                                                  the export has no compiled path; else loaded only on demand by
@@ -295,6 +298,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         "clips": clips,
         "rpos": rpo_entries,
         "default_brdf": names[0],
+        "start": start_entry(bundle, [c["name"] for c in clips], [r["name"] for r in rpo_entries]),
         "lights": [{**_lighting_entry(n, lt), "tonemap": tonemaps[n]["whole"],
                     "peaks": _with_tonemap(peaks_entry(peak_lights[n]), tonemaps[n].get("peaks"))}
                    for n, lt in lights.items()],
@@ -312,6 +316,43 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
     atomic_write_json(out / ASSETS / MANIFEST, manifest)
     _copy_page(root, out, vendor)
     return manifest
+
+
+def start_entry(bundle: Any, clips: list[str], brdfs: list[str]) -> dict[str, str]:
+    """What the page opens on: ``{"brdf", "clip", "clip_why"}``. The BRDF is the Python player's default
+    (:func:`prt_torch.player.material.default_brdf`: the character's own material when it has one and the site
+    carries its RPO, else the catalogue's first). The clip is the run's first held-out clip (what the model never
+    saw: the honest first view), else its first training clip, else the site's first clip; ``clip_why`` says which
+    and why in a few words (the page shows it)."""
+    from prt_torch.errors import MissingArtifact
+    from prt_torch.player.material import default_brdf
+
+    brdf = default_brdf(bundle)
+    brdf = brdf if brdf in brdfs else brdfs[0]
+    sets: dict[str, list[str]] = {}
+    try:
+        ds = bundle.run.dataset()
+    except (MissingArtifact, PrtError):
+        ds = None
+    cfg = ds.run_config() if ds is not None else None
+    if cfg is not None:
+        from prt_torch.rig.config import as_clip_range
+
+        for key in ("heldout_clips", "train_clips"):
+            names = []
+            for e in getattr(cfg.character, key):
+                try:  # a split entry names frames of a character clip: the page plays that clip
+                    names.append(ds.clip_by_name(as_clip_range(e).dataset_name, bundle.character).source)
+                except PrtError:
+                    continue
+            sets[key] = [n for n in names if n in clips]
+    if sets.get("heldout_clips"):
+        return {"brdf": brdf, "clip": sets["heldout_clips"][0],
+                "clip_why": "held out of training (the model never saw it)"}
+    if sets.get("train_clips"):
+        return {"brdf": brdf, "clip": sets["train_clips"][0],
+                "clip_why": "a training clip (the run holds no clip out)"}
+    return {"brdf": brdf, "clip": clips[0], "clip_why": "the first clip (the run records no training split)"}
 
 
 def _texels(n_coeffs: int) -> int:

@@ -14,6 +14,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from tests.export.pipeline import build_tiny_run
@@ -97,3 +98,36 @@ def player(tiny_run: Path, checked_site: tuple[Path, dict[str, Any]]):
     p.rotate_light(0.0)
     yield p
     p.close()
+
+
+@pytest.fixture(scope="session")
+def compiled(tiny_run: Path, checked_site: tuple[Path, dict[str, Any]]):
+    """The Python player's compiled CPU path (the reference of the GPU decode) under the whole sky."""
+    from prt_torch.player.lighting import load_lighting
+    from prt_torch.player.player import Player
+
+    p = Player(tiny_run, threads=1, graph="compiled")
+    p.lighting = load_lighting(None, p.order)
+    p.rotate_light(0.0)
+    yield p
+    p.close()
+
+
+@pytest.fixture(scope="session")
+def decode(checked_site: tuple[Path, dict[str, Any]], player: Any) -> dict[str, Any]:
+    """The site's GPU decode data as the page reads it: manifest entry, bases (V, K + 1, 4T) float32, rows (V, 2)."""
+    from prt_torch.web.site import ASSETS, DATA, read_manifest
+
+    m = read_manifest(checked_site[0])
+    d = m["decode"]
+    assert d is not None and d["basis_dtype"] == "float16", "the tiny run's site must decode on the GPU"
+    raw = (checked_site[0] / ASSETS / DATA).read_bytes()
+
+    def array(name: str) -> np.ndarray:
+        e = m["data"]["arrays"][name]
+        return np.frombuffer(raw, np.dtype(e["dtype"]), count=int(np.prod(e["shape"])), offset=e["offset"]) \
+            .reshape(e["shape"])
+
+    v = m["n_vertices"]
+    basis = array(d["basis"]).astype(np.float32).reshape(v, d["k_max"] + 1, -1)
+    return {"entry": d, "basis": basis, "rows": array(d["rows"]).astype(np.int64)}

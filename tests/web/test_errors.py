@@ -15,7 +15,7 @@ import pytest
 from prt_torch.web.site import ASSETS, DATA, LATENT_MODEL, MANIFEST, MODEL, PEAKS_MODEL, SITE_FORMAT
 
 
-def _site_copy(site: Path, dst: Path) -> Path:
+def site_copy(site: Path, dst: Path) -> Path:
     """A copy of ``site`` made of hard links (the server refuses symlinks out of the site), the assets folder's files
     copied (a case damages one of them in place)."""
     shutil.copytree(site, dst, copy_function=_link_or_copy, ignore=shutil.ignore_patterns("check", ASSETS))
@@ -93,7 +93,7 @@ def test_broken_asset_shows_a_readable_error(case: str, checked_site: tuple[Path
     from prt_torch.web.serve import SiteServer
 
     damage, words, *query = CASES[case]
-    site = _site_copy(checked_site[0], tmp_path / "site")
+    site = site_copy(checked_site[0], tmp_path / "site")
     damage(site)
     with SiteServer(site) as srv:
         ps = browser.open(srv.url + (query[0] if query else ""))

@@ -24,49 +24,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 
 from tests.tolerance import assert_bitwise, two_path_atol
 
-SKY = {"light": "sky", "playing": False, "unshadowed": False, "perPixel": False, "peaks": False}
+SKY = {"light": "sky", "camera": "fixed", "playing": False, "unshadowed": False, "perPixel": False, "peaks": False}
 #: roundings of the page's SH shading along its longest chain (tests/web/test_page_peaks.py's SH_ROUNDINGS)
 SH_ROUNDINGS = 256
 #: float16's unit roundoff (11 significant bits) and its smallest normal's spacing (subnormal absolute rounding)
 F16_U, F16_ABS = 2.0 ** -11, 2.0 ** -25
 F32_U = 2.0 ** -24
-
-
-@pytest.fixture(scope="module")
-def compiled(tiny_run: Path, checked_site: tuple[Path, dict[str, Any]]):
-    """The Python player's compiled CPU path (the reference of the GPU decode) under the whole sky."""
-    from prt_torch.player.lighting import load_lighting
-    from prt_torch.player.player import Player
-
-    p = Player(tiny_run, threads=1, graph="compiled")
-    p.lighting = load_lighting(None, p.order)
-    p.rotate_light(0.0)
-    yield p
-    p.close()
-
-
-@pytest.fixture(scope="module")
-def decode(checked_site: tuple[Path, dict[str, Any]], player: Any) -> dict[str, Any]:
-    """The site's GPU decode data as the page reads it: manifest entry, bases (V, K + 1, 4T) float32, rows (V, 2)."""
-    from prt_torch.web.site import ASSETS, DATA, read_manifest
-
-    m = read_manifest(checked_site[0])
-    d = m["decode"]
-    assert d is not None and d["basis_dtype"] == "float16", "the tiny run's site must decode on the GPU"
-    raw = (checked_site[0] / ASSETS / DATA).read_bytes()
-
-    def array(name: str) -> np.ndarray:
-        e = m["data"]["arrays"][name]
-        return np.frombuffer(raw, np.dtype(e["dtype"]), count=int(np.prod(e["shape"])), offset=e["offset"]) \
-            .reshape(e["shape"])
-
-    v = m["n_vertices"]
-    basis = array(d["basis"]).astype(np.float32).reshape(v, d["k_max"] + 1, -1)
-    return {"entry": d, "basis": basis, "rows": array(d["rows"]).astype(np.int64)}
 
 
 def _inputs(state: Any, z: np.ndarray) -> dict[str, Any]:
@@ -79,7 +45,7 @@ def _inputs(state: Any, z: np.ndarray) -> dict[str, Any]:
             "latent": z.reshape(-1).astype(float).tolist(), "latentDims": list(z.shape)}
 
 
-def _rounded_latent(compiled: Any, z: np.ndarray, groups: list[dict[str, int]]) -> np.ndarray:
+def rounded_latent(compiled: Any, z: np.ndarray, groups: list[dict[str, int]]) -> np.ndarray:
     """``(G, K)`` float64: z rounded as the CPU path rounds it (:func:`~prt_torch.player.frame_kernels.
     quantize_latent`, the player's own call), per site cluster ``g`` (its ``row`` of z)."""
     from prt_torch.player.frame_kernels import quantize_latent
@@ -96,7 +62,7 @@ def _rounded_latent(compiled: Any, z: np.ndarray, groups: list[dict[str, int]]) 
     return out
 
 
-def _decode_bound(dec: dict[str, Any], zhat: np.ndarray, n_coeffs: int) -> np.ndarray:
+def decode_bound(dec: dict[str, Any], zhat: np.ndarray, n_coeffs: int) -> np.ndarray:
     """``(V, C)`` bound of what the page's decode adds to the exact ``mean + sum_k zhat_k b_k``: each float16 entry
     rounded by at most ``2^-11`` of itself (+ ``2^-25`` absolute below float16's normal range), a float32 sum of
     ``K + 1`` products on each side (the page's and the CPU path's): ``2 gamma_{K+2}`` of the terms' magnitudes."""
@@ -107,7 +73,7 @@ def _decode_bound(dec: dict[str, Any], zhat: np.ndarray, n_coeffs: int) -> np.nd
     return F16_U * terms + F16_ABS * (1.0 + zv.sum(1))[:, None] + 2 * n * F32_U / (1 - n * F32_U) * terms
 
 
-def _shading_columns(player: Any, state: Any, n_coeffs: int) -> np.ndarray:
+def shading_columns(player: Any, state: Any, n_coeffs: int) -> np.ndarray:
     """``(C, V, 3)``: the Python player's shading of each unit visibility vector ``e_c`` (the columns of the linear
     map visibility -> radiance at these vertices, the player's current BRDF and lighting)."""
     n_v = state.positions.shape[2]
@@ -129,7 +95,7 @@ class _GivenLatent:
         return [self.z]
 
 
-def _shade_with_latent(compiled: Any, state: Any, z: np.ndarray) -> np.ndarray:
+def shade_with_latent(compiled: Any, state: Any, z: np.ndarray) -> np.ndarray:
     """``(V, 3)`` float64: the compiled player's radiance of ``state`` decoded from ``z (1, Gz, Kz)``."""
     graph = compiled.compiled.latent
     compiled.compiled.latent = _GivenLatent(z)
@@ -139,7 +105,7 @@ def _shade_with_latent(compiled: Any, state: Any, z: np.ndarray) -> np.ndarray:
         compiled.compiled.latent = graph
 
 
-def _grazing(state: Any, eps: float = 1e-4) -> np.ndarray:
+def grazing(state: Any, eps: float = 1e-4) -> np.ndarray:
     n = state.normals[0].T.astype(np.float64)
     v = state.view_dirs[0].T.astype(np.float64)
     return np.abs((n * v).sum(-1)) < eps
@@ -163,10 +129,10 @@ def test_page_gpu_decode_equals_the_compiled_player(page: Any, player: Any, comp
         want = compiled.shade(state)[0].astype(np.float64)
         page.page.evaluate("s => window.prt.setState(s)", {**SKY, "brdf": brdf, "lightAngle": angle})
         got = np.reshape(page.page.evaluate("x => window.prt.radiance(x)", _inputs(state, z)), (-1, 3))
-        zhat = _rounded_latent(compiled, z, groups)
-        bound = np.einsum("cvk,vc->vk", np.abs(_shading_columns(player, state, c)), _decode_bound(decode, zhat, c))
+        zhat = rounded_latent(compiled, z, groups)
+        bound = np.einsum("cvk,vc->vk", np.abs(shading_columns(player, state, c)), decode_bound(decode, zhat, c))
         atol = two_path_atol(SH_ROUNDINGS, float(np.abs(want).max())) + bound
-        keep = ~_grazing(state)
+        keep = ~grazing(state)
         err = np.abs(got - want)
         assert (err <= atol)[keep].all(), (clip, brdf, float((err - atol)[keep].max()), float(bound.max()))
         # the bound is a small fraction of the radiance: the test has teeth
@@ -262,13 +228,13 @@ def test_crowd_characters_keep_their_own_pose(browser: Any, site_url: str, playe
         q = crowd["poses"][c]
         state = compiled.poser(site_local(compiled.character, q["clip"], q["frame"]), eye - offsets[c])
         z = np.reshape(crowd["latent"]["data"], crowd["latent"]["dims"])[c:c + 1].astype(np.float32)
-        want = _shade_with_latent(compiled, state, z)
-        zhat = _rounded_latent(compiled, z, decode["entry"]["groups"])
-        bound = np.einsum("cvk,vc->vk", np.abs(_shading_columns(player, state, c_count)),
-                          _decode_bound(decode, zhat, c_count))
+        want = shade_with_latent(compiled, state, z)
+        zhat = rounded_latent(compiled, z, decode["entry"]["groups"])
+        bound = np.einsum("cvk,vc->vk", np.abs(shading_columns(player, state, c_count)),
+                          decode_bound(decode, zhat, c_count))
         atol = two_path_atol(SH_ROUNDINGS, float(np.abs(want).max())) + bound
         err = np.abs(rad - want)
-        keep = ~_grazing(state)
+        keep = ~grazing(state)
         assert (err <= atol)[keep].all(), (c, q, float((err - atol)[keep].max()))
     assert np.abs(got[5] - got[0]).max() > 20 * two_path_atol(SH_ROUNDINGS, float(np.abs(got[0]).max()))
 

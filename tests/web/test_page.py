@@ -11,8 +11,8 @@ import pytest
 
 from prt_torch.scoring.statistics import image_psnr
 
-SKY = {"light": "sky", "playing": False, "unshadowed": False, "perPixel": False, "peaks": False}  # the whole sky
-# on the SH path (the peaks: tests/web/test_page_peaks.py)
+SKY = {"light": "sky", "camera": "fixed", "playing": False, "unshadowed": False, "perPixel": False,
+       "peaks": False}  # the whole sky on the SH path (the peaks: tests/web/test_page_peaks.py), the fixed camera
 
 
 def _mask(player: Any, positions: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ import pytest
 from prt_torch.scoring.statistics import image_psnr
 from tests.tolerance import two_path_atol
 
-SKY = {"light": "sky", "playing": False, "unshadowed": False, "perPixel": False}
+SKY = {"light": "sky", "camera": "fixed", "playing": False, "unshadowed": False, "perPixel": False}
 #: roundings along the longest chain of the page's float32 peak term: the local directions (3-term dots of float32
 #: frames and a float32 view from eye - position, normalised), the BRDF (GLSL ES 3.00: exp2 / log2 3 ULP each, pow
 #: inherited from them, so its relative error is the exponent times log2's) and the sum over peaks
