@@ -166,10 +166,11 @@ def _short_channels(channels: list[str]) -> str:
 
 
 def _print_tables(info: dict[str, Any]) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    con = Console()
+    from prt_torch.progress import make_console
+
+    con = make_console()
     if info["kind"] == "bvh":
         con.print(f"[bold]{info['file']}[/bold]: BVH motion, {len(info['joints'])} joints")
     else:
