@@ -25,6 +25,7 @@ BENCHES: dict[str, str] = {
     "shexp": "prt_torch.shexp.bench",
     "cloth": "prt_torch.cloth.bench",
     "s001": "prt_torch.s001.bench",
+    "rpo": "prt_torch.commands.bench_rpo",
 }
 
 
