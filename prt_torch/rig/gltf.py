@@ -677,8 +677,8 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
             bind_local[j] = np.linalg.solve(bind_world[p], bind_world[j])
 
     # -- geometry ---------------------------------------------------------------------------------
-    pos_l, nrm_l, jnt_l, wgt_l, face_l, uv_l, mat_l = [], [], [], [], [], [], []
-    have_normals = True
+    pos_l, jnt_l, wgt_l, face_l, uv_l, mat_l = [], [], [], [], [], []
+    nrm_l: list[np.ndarray | None] = []
     offset = 0
     for part in parts:
         for prim in gltf.meshes[nodes[part.node].mesh].primitives:
@@ -704,14 +704,14 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
             if part.to_mesh is not None:  # into the primary skin's mesh space
                 check(bool(np.all(np.isfinite(p))), f"{path.name}: vertex positions contain NaN or inf")
                 p = p @ part.to_mesh[:3, :3].T + part.to_mesh[:3, 3]
+            idx = (np.arange(p.shape[0]) if prim.indices is None else reader.read(prim.indices)[:, 0])
+            check(idx.size % 3 == 0, f"{path.name}: triangle primitive index count is not a multiple of 3")
+            check(bool(np.all(idx < p.shape[0])), f"{path.name}: triangle indices out of range")
             if at.NORMAL is not None:
                 n_part = reader.read(at.NORMAL)
                 nrm_l.append(n_part if part.to_mesh is None else n_part @ np.linalg.inv(part.to_mesh[:3, :3]))
             else:
-                have_normals = False
-            idx = (np.arange(p.shape[0]) if prim.indices is None else reader.read(prim.indices)[:, 0])
-            check(idx.size % 3 == 0, f"{path.name}: triangle primitive index count is not a multiple of 3")
-            check(bool(np.all(idx < p.shape[0])), f"{path.name}: triangle indices out of range")
+                nrm_l.append(None)
             pos_l.append(p)
             uv_l.append(reader.read(at.TEXCOORD_0) if getattr(at, "TEXCOORD_0", None) is not None else None)
             mat_l.append(prim.material)
@@ -744,7 +744,11 @@ def _build(gltf: Any, buffers: list[bytes], graph: DocumentGraph, path: Path, fp
     check_extent(pos, path.name)
     pos_w, faces_w, (jnt_w, wgt_w), index = weld(pos, faces, jnt, wgt)
     check(faces_w.shape[0] > 0, f"{path.name}: every triangle of the skinned mesh is degenerate")
-    if have_normals:
+    if any(n is not None for n in nrm_l):  # file normals; a part without them (a rigid prop) gets its own, area
+        # weighted over its own triangles in mesh space (a file without any normals is smoothed after welding)
+        starts = np.cumsum([0] + [q.shape[0] for q in pos_l[:-1]])
+        nrm_l = [m if m is not None else vertex_normals(q, f - s0).astype(np.float64)
+                 for m, q, f, s0 in zip(nrm_l, pos_l, face_l, starts, strict=True)]
         n = np.concatenate(nrm_l) @ np.linalg.inv(cg[:3, :3])  # inverse-transpose for normals
         acc = np.zeros((pos_w.shape[0], 3))
         np.add.at(acc, index, n)

@@ -48,6 +48,8 @@ def test_meshes_merge_into_the_reference_character(pair: tuple) -> None:
         ref = c.skin_mesh(c.pose(name))[0]
         np.testing.assert_allclose(got[:, body], ref[:, idx[body]], atol=ATOL, err_msg=name)
     assert sorted(g.clips) == ["squat", "walk", "wave"]
+    # the file's normals are kept although the helmet has none (float32 normals through float32 mesh spaces)
+    np.testing.assert_allclose(g.rest_normals[body], c.rest_normals[idx[body]], atol=1e-5)
 
 
 def test_rigid_part_follows_its_joint(pair: tuple) -> None:
@@ -71,6 +73,8 @@ def test_rigid_part_follows_its_joint(pair: tuple) -> None:
         j = int(c.parents[j])
     for j in reversed(chain):
         bind = bind @ c.bind_local[j]
+    outward = np.einsum("vi,vi->v", g.rest_normals[idx], rest - rest.mean(axis=0))
+    assert np.all(outward > 0)  # the helmet's own normals (it has none in the file) point out of the box
     move = world[:, head] @ np.linalg.inv(bind)
     ref = np.einsum("fij,vj->fvi", move[:, :3, :3], rest) + move[:, None, :3, 3]
     got = g.skin_mesh(g.pose("wave"))[0][:, idx]
