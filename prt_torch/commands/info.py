@@ -18,10 +18,15 @@ humanoid, :mod:`prt_torch.rig.builtin`). Shown:
   after the file stem.
 * ``builtin``: the humanoid's joints, vertex/face counts and its six clips.
 
+A character with few shading vertices (fewer than :data:`prt_torch.rig.lowpoly.LOW_POLY_VERTICES`) gets one
+``warning:`` line on stderr naming the remedy, ``character.subdivide: N`` in the run config
+(:func:`prt_torch.rig.lowpoly.low_poly_advice`; per-vertex shadows on large triangles are blotches).
+
 With ``--json`` one JSON object goes to stdout: ``file``, ``kind`` (``gltf``, ``bvh`` or ``builtin``),
 ``character``, ``vertices``, ``faces``, ``height`` (``null`` for BVH), ``joints`` (``[{"index",
 "name", "parent" (name or null), "parent_index" (-1 for a root)}]``, BVH joints also ``channels``),
-``clips`` (``[{"name", "frames", "fps", "duration"}]``) and ``materials`` (glTF: ``[{"index", "name"
+``clips`` (``[{"name", "frames", "fps", "duration"}]``), ``low_poly`` (the advice line, or ``null``) and
+``materials`` (glTF: ``[{"index", "name"
 (or null), "base_color_factor" [r, g, b, a], "base_color_texture" (bool), "roughness_factor",
 "metallic_factor", "used" (bool)}]``, else ``[]``). A missing file, an unknown extension or a malformed
 file is one line ``error: ...`` and exit status 2. Never imports torch.
@@ -50,6 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     info = describe(args.file, fps=args.fps)
+    if info.get("low_poly"):
+        from prt_torch.errors import warn
+
+        warn(info["low_poly"])
     if args.json:
         json.dump(info, sys.stdout)
         sys.stdout.write("\n")
@@ -100,11 +109,14 @@ def _clips(clips: Any) -> list[dict[str, Any]]:
 def _character_info(file: str, kind: str, character: Any) -> dict[str, Any]:
     import numpy as np
 
+    from prt_torch.rig.lowpoly import low_poly_advice
+
     return {"file": file, "kind": kind, "character": character.name, "vertices": character.num_vertices,
             "faces": int(character.faces.shape[0]),
             "height": float(np.ptp(character.rest_vertices[:, 2])) if character.num_vertices else 0.0,
             "joints": _joints(character.joint_names, character.parents),
-            "clips": _clips(character.clips.values()), "materials": []}
+            "clips": _clips(character.clips.values()), "materials": [],
+            "low_poly": low_poly_advice(character.num_vertices)}
 
 
 def _describe_builtin() -> dict[str, Any]:
@@ -155,7 +167,7 @@ def _describe_bvh(path: Path) -> dict[str, Any]:
     for j, ch in zip(joints, channels, strict=True):
         j["channels"] = ch
     return {"file": str(path), "kind": "bvh", "character": clip.name, "vertices": 0, "faces": 0, "height": None,
-            "joints": joints, "clips": _clips([clip]), "materials": []}
+            "joints": joints, "clips": _clips([clip]), "materials": [], "low_poly": None}
 
 
 def _short_channels(channels: list[str]) -> str:

@@ -231,6 +231,11 @@ class CharacterConfig(BaseModel):
     Every number is finite and bounded (:mod:`prt_torch.limits`): ``density`` in
     ``[MIN_DENSITY, MAX_DENSITY]``, ``fps`` in ``(0, MAX_FPS]``, ``random_poses <= MAX_RANDOM_POSES``,
     ``seed`` in ``0..MAX_SEED``.
+
+    ``subdivide: N`` (0..4, default 0) bakes, trains and shades a copy of the character's mesh split ``N`` times by
+    edge midpoints (``4^N`` faces; skin weights, normals and UVs interpolated:
+    :func:`prt_torch.rig.lowpoly.subdivide_character`), for low-poly characters whose per-vertex shadows would be
+    blotches (``prt info`` says when: :func:`prt_torch.rig.lowpoly.low_poly_advice`).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -241,6 +246,8 @@ class CharacterConfig(BaseModel):
     # glTF only: rescale to this height (load_gltf(height=...))
     height: float | None = Field(default=None, gt=0, le=L.MAX_HEIGHT)
     fps: float = Field(default=30.0, gt=0, le=L.MAX_FPS)  # sampling rate for clips
+    # midpoint subdivision levels of the shading mesh (prt_torch.rig.lowpoly: low-poly characters), 4^N faces
+    subdivide: int = Field(default=0, ge=0, le=4)
     train_clips: list[ClipEntry] = Field(default_factory=list, max_length=L.MAX_LIST_LENGTH)
     heldout_clips: list[ClipEntry] = Field(default_factory=list, max_length=L.MAX_LIST_LENGTH)
     # random poses within joint limits added to training

@@ -46,6 +46,10 @@ def load_character(cfg: RunConfig) -> Character:
         character = load_gltf(path, fps=ch.fps, height=ch.height)
     for message in ch.ineffective_keys(ch.source == "builtin", character.joint_limits is not None):
         warn(message)
+    if ch.subdivide:  # low-poly characters: bake and shade a subdivided copy, same skeleton and skin
+        from prt_torch.rig.lowpoly import subdivide_character
+
+        character = subdivide_character(character, ch.subdivide)
     return add_motions(cfg, character)
 
 
