@@ -36,7 +36,7 @@ def game(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 def test_init_to_compare_without_edits(game: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The whole chain on the written config as is; the learned model beats no shadowing on the held-out clip, a
     whole clip of the file's one category that training never saw."""
-    code, out, err = _run(capsys, "init", str(game), "--minutes", "1", "--out", "cfg/game.yaml")
+    code, out, err = _run(capsys, "init", str(game), "--minutes", "0.5", "--out", "cfg/game.yaml")
     assert code == 0, err
     warnings = [line for line in err.splitlines() if line]
     assert all(line.startswith("warning: game.glb: ") for line in warnings), err

@@ -67,10 +67,12 @@ PROBE_TASK = 4
 POOL_EFFICIENCY = 0.75
 POOL_START_SECONDS = 2.0
 #: train constants, measured on this project's 2-core machine with other jobs running (docs/DESIGN.md "prt init"):
-#: seconds of the MLP's cross-validated fit per training frame per grid unit, seconds of the reduction and the
-#: linear / quadratic fits per frame x vertex x coefficient, and the fixed start-up of ``prt train``
+#: seconds of the MLP's cross-validated fit per training frame per grid unit, of the quadratic fit per training
+#: frame, of the reductions (pose / visibility PCA, clusters) per frame x vertex x coefficient, and the fixed
+#: start-up of ``prt train``
 MLP_SECONDS = 0.02
-REDUCE_SECONDS = 4e-6
+QUADRATIC_SECONDS = 0.008
+REDUCE_SECONDS = 1e-6
 TRAIN_FIXED_SECONDS = 8.0
 #: :func:`fit_workload`'s seconds on that machine (the speed reference of the train constants)
 REFERENCE_FIT_SECONDS = 0.025
@@ -143,7 +145,8 @@ class Probe:
         """Estimated wall seconds of ``prt train``: ``train_frames`` training frames (``frames`` in all) of
         ``vertices x coeffs`` visibility, ``grid`` MLP grid units (:func:`grid_units`)."""
         speed = self.fit_seconds / REFERENCE_FIT_SECONDS
-        work = MLP_SECONDS * train_frames * grid + REDUCE_SECONDS * frames * vertices * coeffs
+        work = ((MLP_SECONDS * grid + QUADRATIC_SECONDS) * train_frames
+                + REDUCE_SECONDS * frames * vertices * coeffs)
         return self.load_seconds + TRAIN_FIXED_SECONDS + speed * work
 
 
@@ -254,11 +257,8 @@ def run(args: argparse.Namespace) -> int:
 def _low_poly(name: str, vertices: int) -> None:
     """The low-poly advice of ``prt info`` (:func:`prt_torch.rig.lowpoly.low_poly_advice`) as one warning line."""
     from prt_torch.errors import warn
+    from prt_torch.rig.lowpoly import low_poly_advice
 
-    try:
-        from prt_torch.rig.lowpoly import low_poly_advice
-    except ImportError:  # a tree without the low-poly advice (it lands with prt info's check)
-        return
     advice = low_poly_advice(vertices)
     if advice is not None:
         warn(f"{name}: {advice}")
@@ -587,6 +587,12 @@ def config_text(data: dict[str, Any], path: Path, items: list[Item], split: Spli
         lines.append(f"  height: {ch['height']}             # the file is {height:.3g} units tall: scaled to "
                      f"{DEFAULT_HEIGHT} m")
     lines.append(f"  fps: {ch['fps']}                # clip sampling rate of the bake (chosen by the budget)")
+    from prt_torch.rig.lowpoly import LOW_POLY_VERTICES, suggested_levels
+
+    if vertices < LOW_POLY_VERTICES:
+        levels = suggested_levels(vertices)
+        lines.append(f"  # subdivide: {levels}           # low-poly ({vertices} vertices): shade a subdivided copy "
+                     f"(~{vertices * 4 ** levels} vertices; the budget above did not count it)")
     if "motions" in ch:
         lines.append("  motions:                 # retargeted onto the character (prt_torch.rig.retarget)")
         by_name = {i.name: i for i in items}
