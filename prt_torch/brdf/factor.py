@@ -52,13 +52,13 @@ DEFAULT_N_THETA = 24
 DEFAULT_N_PHI = 48
 #: BRDF terms ``k`` of a factorisation, of an RPO and of the exported shading graphs by default (``prt export
 #: --terms``). Measured by ``prt bench rpo`` (docs/DESIGN.md, "RPO terms and factorisation order"): the fewest terms
-#: whose image PSNR against the Monte-Carlo reference is within 0.3 dB of the untruncated order-4 operator for every
-#: catalogue BRDF (k = 4 loses 3.1 dB on ward); k = 16 gains nothing measurable for twice the product matrices.
+#: whose image PSNR against the Monte-Carlo reference is within 0.15 dB of the untruncated order-4 operator for every
+#: catalogue BRDF ("after"; k = 4 loses up to 3.1 dB on ward); k = 16 gains nothing measurable for twice ``M``.
 DEFAULT_TERMS = 8
 #: factorisation orders (module docstring): SVD of the tabulated BRDF, or of its SH projection
 FACTOR_ORDERS = ("before", "after")
 #: the factorisation order of every RPO built by default: ``"after"`` (optimal in the norm the shading sees, same
-#: bytes and time; measured at k = 8 its radiance is 0.4-1.7 % off the untruncated operator vs 2.0-4.2 % "before")
+#: bytes and time; measured at k = 8 its radiance is 0.4-1.6 % off the untruncated operator vs 2.0-4.2 % "before")
 DEFAULT_FACTOR_ORDER = "after"
 
 
