@@ -156,9 +156,9 @@ def test_no_animation_and_no_motion_is_refused(tmp_path: Path, monkeypatch: pyte
 
 def test_budget_takes_the_best_rung_that_fits() -> None:
     """With a probe of known cost the chosen rung is the first of the ladder whose estimate fits and every better
-    rung's does not; the frames are the clips' ``floor(seconds x fps) + 1`` plus a quarter of the training frames as
-    random poses; a smaller budget never buys more rays x frames; below the last rung the clips are cut until the
-    estimate fits."""
+    rung's does not (with the full grid or the small one); the frames are the clips' ``floor(seconds x fps) + 1``
+    plus a quarter of the training frames as random poses; a smaller budget never buys more rays x frames; below the
+    last rung the clips are cut until the estimate fits."""
     pr = Probe(bake_fixed=5.0, a=2e-3, b=4e-3, fit_seconds=REFERENCE_FIT_SECONDS, load_seconds=1.0, probe_frames=16,
                traced=[])
     items = [Item("a", 6.0, "x"), Item("b", 3.0, "x"), Item("c", 1.5, "x")]
@@ -169,8 +169,11 @@ def test_budget_takes_the_best_rung_that_fits() -> None:
         rung = LADDER.index((b.rays, b.fps))
         if b.cap_seconds is None:
             assert b.total_s <= seconds
-            for rays, fps in LADDER[:rung]:
+            for rays, fps in LADDER[:rung]:  # with either grid
                 assert plan_budget(items, split, pr, 1000, rays, fps, None).total_s > seconds
+                assert plan_budget(items, split, pr, 1000, rays, fps, None, full_grid=False).total_s > seconds
+            if b.frames >= 400 and not b.full_grid:  # the small grid only where the full one does not fit
+                assert plan_budget(items, split, pr, 1000, b.rays, b.fps, None, full_grid=True).total_s > seconds
             train = int(6.0 * b.fps) + 1 + int(3.0 * b.fps) + 1
             assert b.random_poses == round(train / 4) and b.frames == train + int(1.5 * b.fps) + 1 + b.random_poses
         else:

@@ -152,8 +152,8 @@ class Probe:
 
 @dataclass
 class Budget:
-    """The chosen ``rays`` and ``fps``, ``cap_seconds`` per clip (``None``: whole clips), the frame counts and the
-    estimate in seconds."""
+    """The chosen ``rays`` and ``fps``, ``cap_seconds`` per clip (``None``: whole clips), the frame counts, the
+    estimate in seconds and whether the fits take the full grid (:func:`train_grid`)."""
 
     rays: int
     fps: float
@@ -162,6 +162,7 @@ class Budget:
     random_poses: int
     bake_s: float
     train_s: float
+    full_grid: bool = False
 
     @property
     def total_s(self) -> float:
@@ -466,10 +467,10 @@ def _frames(seconds: float, fps: float) -> int:
 
 
 def plan_budget(items: list[Item], split: Split, pr: Probe, vertices: int, rays: int, fps: float,
-                cap: float | None, order: int = 4) -> Budget:
+                cap: float | None, order: int = 4, full_grid: bool | None = None) -> Budget:
     """The frames and the estimated seconds of one rung: ``rays`` per vertex, clips sampled at ``fps``, each whole
     clip cut to ``cap`` seconds (``None``: whole), plus :data:`RANDOM_SHARE` of the training frames as random
-    poses."""
+    poses; ``full_grid`` the fits' grid (``None``: full from :data:`FULL_GRID_FRAMES` frames on)."""
     train = heldout = 0
     heldout_names = {e if isinstance(e, str) else e["name"] for e in split.heldout}
     for i in items:
@@ -483,27 +484,33 @@ def plan_budget(items: list[Item], split: Split, pr: Probe, vertices: int, rays:
             train += _frames(s, fps)
     rnd = int(round(RANDOM_SHARE * train))
     frames = train + heldout + rnd
+    full = frames >= FULL_GRID_FRAMES if full_grid is None else full_grid
     return Budget(rays, fps, cap, frames, rnd, pr.bake_seconds(frames, rays),
-                  pr.train_seconds(train + rnd, frames, vertices, order * order, grid_units(train_grid(frames))))
+                  pr.train_seconds(train + rnd, frames, vertices, order * order, grid_units(train_grid(full))), full)
 
 
 def choose_budget(items: list[Item], split: Split, pr: Probe, vertices: int, seconds: float,
                   order: int = 4) -> Budget:
-    """The first :data:`LADDER` rung whose estimate (:func:`plan_budget`) fits ``seconds``; else the last rung with
-    every whole clip cut to the longest duration that fits (bisection; a single clip's split is never cut)."""
+    """The first :data:`LADDER` rung whose estimate (:func:`plan_budget`) fits ``seconds`` - with the full grid
+    where it has the frames for it, else with the small grid; else the last rung, small grid, with every whole clip
+    cut to the longest duration that fits (bisection; a single clip's split is never cut)."""
     for rays, fps in LADDER:
         b = plan_budget(items, split, pr, vertices, rays, fps, None, order)
         if b.total_s <= seconds:
             return b
+        if b.full_grid:
+            b = plan_budget(items, split, pr, vertices, rays, fps, None, order, full_grid=False)
+            if b.total_s <= seconds:
+                return b
     rays, fps = LADDER[-1]
     if len(items) == 1:
-        return plan_budget(items, split, pr, vertices, rays, fps, None, order)
+        return plan_budget(items, split, pr, vertices, rays, fps, None, order, full_grid=False)
     lo, hi = 0.0, max(i.seconds for i in items)
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        fits = plan_budget(items, split, pr, vertices, rays, fps, mid, order).total_s <= seconds
+        fits = plan_budget(items, split, pr, vertices, rays, fps, mid, order, full_grid=False).total_s <= seconds
         lo, hi = (mid, hi) if fits else (lo, mid)
-    return plan_budget(items, split, pr, vertices, rays, fps, max(lo, 1.0 / fps), order)
+    return plan_budget(items, split, pr, vertices, rays, fps, max(lo, 1.0 / fps), order, full_grid=False)
 
 
 def _capped(entries: list[Any], cap: float | None) -> list[Any]:
@@ -542,15 +549,15 @@ def config_data(name: str, path: Path, out: Path, character: Character, items: l
         "bake": {"order": 4, "n_rays": budget.rays, "below_horizon": "one", "transfer": False, "frames_per_task": 8,
                  "workers": 0, "seed": 0},
         "train": {"kinds": ["linear", "quadratic", "mlp"], "default_kind": "mlp", "input_variance": 0.90,
-                  "output_variance": 0.95, "whiten_inputs": False, "folds": 4, **train_grid(budget.frames),
+                  "output_variance": 0.95, "whiten_inputs": False, "folds": 4, **train_grid(budget.full_grid),
                   "seed": 0},
     }
 
 
-def train_grid(frames: int) -> dict[str, Any]:
-    """The fits' hyper-parameter grid: the configs' full grid (``configs/mocap.yaml``) from :data:`FULL_GRID_FRAMES`
-    frames on, a smaller one below (few frames support few parameters, and the fit stays short)."""
-    if frames >= FULL_GRID_FRAMES:
+def train_grid(full: bool) -> dict[str, Any]:
+    """The fits' hyper-parameter grid: the configs' full grid (``configs/mocap.yaml``), or a smaller one (for fewer
+    than :data:`FULL_GRID_FRAMES` frames - few frames support few parameters - or a budget the full grid misses)."""
+    if full:
         return {"alphas": [0.001, 0.01, 0.1, 1.0, 10.0, 100.0], "mlp_alphas": [0.1, 1.0, 10.0, 100.0],
                 "neurons": [4, 8, 16], "cv_iter": 200, "max_iter": 500}
     return {"alphas": [0.01, 0.1, 1.0, 10.0, 100.0], "mlp_alphas": [1.0, 10.0], "neurons": [4, 8], "cv_iter": 100,
