@@ -38,6 +38,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-frames", "--frames", dest="max_frames", type=int, default=None,
                         help="play at most this many frames")
     parser.add_argument("--fps", type=float, default=None, help="resample the clip to this rate")
+    parser.add_argument("--camera", default=None, choices=["follow", "fixed"],
+                        help="--clip / --motion: follow (default): frame the posed character over a window of "
+                             "+-0.5 s, smoothly (prt_torch.player.follow: root motion stays in the frame); fixed: the "
+                             "rest pose's box")
     parser.add_argument("--graph", default=None,
                         choices=["compiled", "fused", "split", "overlap", "fused_peaks", "pipeline"],
                         help="default: compiled on the CPU (a small ORT graph, then one compiled decode + shade "
@@ -118,6 +122,9 @@ def run(args: argparse.Namespace) -> int:
         V.output_dir(args.png, "--png")
     if args.timings is not None:
         V.output_file(args.timings, "--timings")
+    if getattr(args, "camera", None) is not None and (getattr(args, "sequence", None) is not None or args.ground
+                                                      or getattr(args, "scene", None) is not None):
+        raise PrtError("--camera frames a --clip or --motion; a --sequence or --ground/--scene keeps its own camera")
     if getattr(args, "sequence", None) is not None:
         return _play_sequence(args, h, w)
 
@@ -151,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
             player.character.clips[clip] = motion
             console.print(report.summary())
         res = player.play(clip, out=args.out, png_dir=args.png, max_frames=args.max_frames, fps=args.fps,
-                          timings=timings, show=show)
+                          timings=timings, show=show, camera=getattr(args, "camera", None) or "follow")
     finally:
         player.close()
     s = res.summary

@@ -93,18 +93,10 @@ class FollowTrack:
         return int(len(self.radius))
 
     def at(self, frame: int) -> tuple[np.ndarray, float]:
-        """``(center (3,) float32, radius)`` of ``frame`` (clamped to the clip)."""
+        """``(center (3,) float32, radius)`` of ``frame`` (clamped to the clip): the eye is
+        :func:`prt_torch.player.player.camera_eye` ``(*track.at(frame), azimuth, elevation)``."""
         i = min(max(int(frame), 0), len(self) - 1)
         return self.center[i].astype(np.float32), float(self.radius[i])
-
-    def eye(self, frame: int, azimuth: float | None = None, elevation: float | None = None) -> np.ndarray:
-        """The eye ``(3,)`` float32 of ``frame``: :func:`prt_torch.player.player.camera_eye` at its centre and radius
-        (default azimuth and elevation: the player's)."""
-        from prt_torch.player.player import CAMERA_AZIMUTH, CAMERA_ELEVATION, camera_eye
-
-        c, r = self.at(frame)
-        return camera_eye(c, r, CAMERA_AZIMUTH if azimuth is None else azimuth,
-                          CAMERA_ELEVATION if elevation is None else elevation)
 
     def flat(self) -> list[float]:
         """The track as data (the page's ``camera.follow[clip]``): ``4 T`` floats ``cx, cy, cz, radius`` per frame."""

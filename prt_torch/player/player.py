@@ -97,6 +97,8 @@ class PlayResult:
 CAMERA_AZIMUTH, CAMERA_ELEVATION = 0.0, 0.2
 #: camera distance from the centre, in rest-pose bounding-box diagonals
 CAMERA_DISTANCE = 1.9
+#: :meth:`Player.play`'s cameras: the follow camera (:mod:`prt_torch.player.follow`) or the rest pose's fixed one
+CAMERA_MODES = ("follow", "fixed")
 
 
 def camera_target(rest_vertices: np.ndarray) -> tuple[np.ndarray, float]:
@@ -654,10 +656,29 @@ class Player:
         r.update(state.positions_vx3(index), col, radiance=radiance[index], tonemap=self.exposure)
         return r.render()
 
+    def follow(self, clip: Any, fps: float | None = None) -> Any:
+        """The follow camera (:func:`prt_torch.player.follow.clip_follow`) of ``clip`` (a name or a
+        :class:`~prt_torch.rig.clip.Clip` of the character) at ``fps`` (default the clip's rate), as :meth:`play`
+        frames it; ``None`` for frames that are not a clip of the character's joints (a cloth sequence keeps its own
+        camera, :func:`sequence_view`)."""
+        if not isinstance(clip, str | Clip):
+            return None
+        from prt_torch.player.follow import clip_follow
+
+        return clip_follow(self.character, clip, fps)
+
+    def _aim(self, frame: int) -> None:
+        """Point the camera at ``frame`` of the clip being played (the follow track's centre and radius; nothing
+        with the fixed camera)."""
+        track = getattr(self, "_track", None)
+        if track is not None:
+            self.center, self.radius = track.at(frame)
+
     def play(self, clip: str | Clip, out: str | os.PathLike[str] | None = None,
              png_dir: str | os.PathLike[str] | None = None, max_frames: int | None = None,
              fps: float | None = None, timings: str | os.PathLike[str] | None = None,
-             show: bool = False, progress: bool = True) -> PlayResult:
+             show: bool = False, progress: bool = True, camera: str = "follow",
+             viewer: dict[str, Any] | None = None) -> PlayResult:
         """Play ``clip``: offscreen into an MP4 (``out``) and/or PNG frames (``png_dir``), or in a window.
 
         Args:
@@ -667,14 +688,21 @@ class Player:
             max_frames: play at most this many frames.
             fps: resample the clip (and the video) to this rate.
             timings: JSON file for per-frame step timings.
-            show: an interactive window (needs a display): keys ``l`` rotate light, ``b`` next BRDF,
-                ``Left``/``Right``/``Up``/``Down`` orbit the camera, ``q`` quit.
+            show: an interactive window (needs a display; :class:`prt_torch.player.viewer.Viewer`): the clip at its
+                rate, looping until closed; keys ``space`` pause, ``period`` / ``comma`` step, ``l`` rotate light,
+                ``b`` next BRDF, ``Left``/``Right``/``Up``/``Down`` orbit the camera, ``h`` the key list, ``q`` quit.
+            camera: ``"follow"`` (the default: :mod:`prt_torch.player.follow`, the posed character framed over a
+                window of frames, smoothly) or ``"fixed"`` (the rest pose's box). The player's :attr:`center` and
+                :attr:`radius` are the frame's while it plays and what they were afterwards.
+            viewer: keyword options of the window's :class:`~prt_torch.player.viewer.Viewer` (``clock``,
+                ``sleep``, ``on_tick``).
         """
         from prt_torch.player.render import has_display
-        from prt_torch.player.video import VideoWriter, write_png
 
+        check(camera in CAMERA_MODES, f"unknown camera {camera!r}: expected one of {', '.join(CAMERA_MODES)}")
         locals_ = self.clip_locals(clip, fps)
         rate = float(fps or self.character.clip(clip).fps)  # a Clip (e.g. a split's frame range) passes through
+        track = self.follow(clip, fps) if camera == "follow" else None
         clip = clip if isinstance(clip, str) else clip.name
         n = len(locals_) if max_frames is None else max(0, min(int(max_frames), len(locals_)))
         check(n > 0, f"clip {clip!r}: nothing to play (max_frames={max_frames})")
@@ -682,14 +710,37 @@ class Player:
             raise PrtError("no display for an interactive window: pass --out video.mp4 or --png DIR instead")
         timer = FrameTimer()
         outputs: list[Path] = []
+        saved = (self.center, self.radius)
+        self._track = track
+        try:
+            if show:
+                n = self._view(locals_, n, rate, clip, timer, viewer or {})
+            else:
+                self._play_offscreen(locals_, n, rate, clip, timer, out, png_dir, progress, outputs)
+        finally:
+            self._track = None
+            self.center, self.radius = saved
+        summary = timer.summary()
+        if timings is not None:
+            timer.write_json(timings, extra={"clip": clip, "graph": self.graph, "brdf": self.rpo.name,
+                                             "lighting": self.lighting.source, **self.peaks.to_dict(),
+                                             "peak_visibility": None if self.peak_source is None
+                                             else self.peak_source.kind, "n_vertices": self.bundle.n_vertices,
+                                             "sh_order": self.order, "exposure": self.exposure.exposure,
+                                             "white": self.exposure.white, "camera": camera})
+            outputs.append(Path(timings))
+        return PlayResult(n, summary, outputs)
+
+    def _play_offscreen(self, locals_: Any, n: int, rate: float, clip: str, timer: FrameTimer,
+                        out: str | os.PathLike[str] | None, png_dir: str | os.PathLike[str] | None, progress: bool,
+                        outputs: list[Path]) -> None:
+        """:meth:`play` into an MP4 and/or PNG frames (or compute only); appends the written paths to ``outputs``."""
+        from prt_torch.player.video import VideoWriter, write_png
+
         writer = VideoWriter(out, fps=rate) if out is not None else None
         if png_dir is not None:
             Path(png_dir).mkdir(parents=True, exist_ok=True)
-        render = writer is not None or png_dir is not None or show
-        renderer = self.renderer(off_screen=not show) if render else None
-        if show:
-            self._bind_keys(renderer)
-            renderer.plotter.show(interactive_update=True, auto_close=False)
+        renderer = self.renderer(off_screen=True) if writer is not None or png_dir is not None else None
         prog = _progress(progress, n, f"playing {clip}")
         try:
             for i, (state, radiance) in enumerate(self.compute_stream(locals_, n, timer)):
@@ -699,15 +750,11 @@ class Player:
                     with timer.step("render"):
                         renderer.set_camera(self.eye, self.center)
                         renderer.update(state.positions_vx3(0), col, radiance=radiance[0], tonemap=self.exposure)
-                        if show:
-                            renderer.plotter.update()
-                            img = None
-                        else:
-                            img = renderer.render()
+                        img = renderer.render()
                     with timer.step("write"):
-                        if img is not None and writer is not None:
+                        if writer is not None:
                             writer.append(img)
-                        if img is not None and png_dir is not None:
+                        if png_dir is not None:
                             write_png(Path(png_dir) / f"frame_{i:05d}.png", img)
                 if prog is not None:
                     prog.advance()
@@ -722,32 +769,39 @@ class Player:
             outputs.append(writer.close())
         if png_dir is not None:
             outputs.append(Path(png_dir))
-        summary = timer.summary()
-        if timings is not None:
-            timer.write_json(timings, extra={"clip": clip, "graph": self.graph, "brdf": self.rpo.name,
-                                             "lighting": self.lighting.source, **self.peaks.to_dict(),
-                                             "peak_visibility": None if self.peak_source is None
-                                             else self.peak_source.kind, "n_vertices": self.bundle.n_vertices,
-                                             "sh_order": self.order, "exposure": self.exposure.exposure,
-                                             "white": self.exposure.white})
-            outputs.append(Path(timings))
-        return PlayResult(n, summary, outputs)
+
+    def _view(self, locals_: Any, n: int, rate: float, clip: str, timer: FrameTimer, options: dict[str, Any]) -> int:
+        """:meth:`play` in a window (:class:`~prt_torch.player.viewer.Viewer`); returns the frames drawn."""
+        from prt_torch.player.viewer import Viewer
+
+        renderer = self.renderer(off_screen=False)
+
+        def draw(i: int) -> None:
+            self._aim(i)
+            state, radiance = self.compute(locals_[i:i + 1], timer)
+            with timer.step("colors"):
+                col = self.colors(radiance[0])
+            with timer.step("render"):
+                renderer.set_camera(self.eye, self.center)
+                renderer.update(state.positions_vx3(0), col, radiance=radiance[0], tonemap=self.exposure)
+
+        step, tilt = np.radians(10), np.radians(8)
+        actions = {"Left": lambda: self.orbit(-step), "Right": lambda: self.orbit(step),
+                   "Up": lambda: self.orbit(0, tilt), "Down": lambda: self.orbit(0, -tilt),
+                   "l": lambda: self.rotate_light(np.radians(15)), "b": self.next_brdf}
+        try:
+            return Viewer(renderer, n, rate, draw, actions, title=f"prt play {clip}", **options).run()
+        finally:
+            self._renderer = None  # the viewer closed its window
 
     def compute_stream(self, locals_: Any, n: int, timer: FrameTimer | None = None) -> Iterator[tuple[PoseBatch,
                                                                                                      np.ndarray]]:
         """``(state, radiance)`` of frames ``0 .. n-1`` of ``locals_`` in order (what :meth:`play` renders): one
-        :meth:`compute` per frame here; a subclass may keep several frames in flight."""
+        :meth:`compute` per frame here, the camera aimed at each frame first (:meth:`_aim`); a subclass may keep
+        several frames in flight."""
         for i in range(n):
+            self._aim(i)
             yield self.compute(locals_[i:i + 1], timer)
-
-    def _bind_keys(self, renderer: Any) -> None:  # pragma: no cover - needs a display
-        pl = renderer.plotter
-        pl.add_key_event("l", lambda: self.rotate_light(np.radians(15)))
-        pl.add_key_event("b", lambda: self.next_brdf())
-        pl.add_key_event("Left", lambda: self.orbit(-np.radians(10)))
-        pl.add_key_event("Right", lambda: self.orbit(np.radians(10)))
-        pl.add_key_event("Up", lambda: self.orbit(0, np.radians(8)))
-        pl.add_key_event("Down", lambda: self.orbit(0, -np.radians(8)))
 
     def close(self) -> None:
         if self._pool is not None:

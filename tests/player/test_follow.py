@@ -73,7 +73,7 @@ def frame_extent(pos: np.ndarray, track=None, rest=None) -> np.ndarray:
     for t in range(len(pos)):
         if track is not None:
             c, _ = track.at(t)
-            eye = track.eye(t)
+            eye = camera_eye(*track.at(t))
         out[t] = np.abs(ndc(pos[t], eye, c)).max()
     return out
 
@@ -130,7 +130,7 @@ def test_still_character_is_framed_as_its_pose(character):
                                atol=two_path_atol(2, mag) + 12 * gamma(12, np.float64) * mag)
     np.testing.assert_allclose(tr.radius, r, rtol=gamma(8))
     # camera_eye in float32 on both sides: the centre's and the radius's gaps times the distance, plus its roundings
-    np.testing.assert_allclose(tr.eye(3), camera_eye(c, r, CAMERA_AZIMUTH, CAMERA_ELEVATION), rtol=0,
+    np.testing.assert_allclose(camera_eye(*tr.at(3)), camera_eye(c, r, CAMERA_AZIMUTH, CAMERA_ELEVATION), rtol=0,
                                atol=two_path_atol(8, mag + 2 * r))
 
 
