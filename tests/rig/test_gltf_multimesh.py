@@ -5,7 +5,9 @@ out (one warning line). The reference is the built-in character the file was wri
 
 from __future__ import annotations
 
+import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -88,3 +90,24 @@ def test_warnings_are_one_line_each(pair: tuple) -> None:
     assert any(m.startswith("game.glb: 1 mesh node(s) not part of the character, left out: 'Crate'") for m in messages)
     weights = [m for m in messages if "do not sum to 1" in m]
     assert len(weights) == 1 and weights[0].endswith("; normalised")
+
+
+def test_a_skin_of_another_skeleton_is_left_out(tmp_path: Path) -> None:
+    """The Arms mesh's skin made to name a node outside the body's skeleton: the Arms are left out with one warning
+    line naming them and why; the body and the helmet load as before."""
+    c = make_character(0.05, fps=FPS)
+    path = write_game_humanoid(tmp_path / "two.gltf", c)
+    doc = json.loads(path.read_text())
+    doc["nodes"].append({"name": "Stray"})
+    doc["scenes"][0]["nodes"].append(len(doc["nodes"]) - 1)
+    doc["skins"][1]["joints"][0] = len(doc["nodes"]) - 1
+    path.write_text(json.dumps(doc))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        g = load_gltf(path, fps=FPS)
+    messages = [str(w.message) for w in caught if issubclass(w.category, PrtWarning)]
+    assert any(m.startswith("two.gltf: 2 mesh node(s) not part of the character, left out: 'Arms' (skin 1 has joints "
+                            "outside skin 0), 'Crate'") for m in messages), messages
+    d, _ = cKDTree(c.rest_vertices).query(g.rest_vertices)
+    assert (d >= 1e-4).sum() == 8  # the helmet, nothing else foreign
+    assert (d < 1e-4).sum() < c.num_vertices  # the arm vertices are gone
