@@ -171,6 +171,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
     """
     from prt_torch.player.bundle import RunBundle
     from prt_torch.player.compiled import has_compiled_path
+    from prt_torch.player.follow import clip_follow
     from prt_torch.player.lighting import hemisphere_visibility
     from prt_torch.player.material import vertex_base_color
     from prt_torch.player.player import CAMERA_AZIMUTH, CAMERA_DISTANCE, CAMERA_ELEVATION, camera_target
@@ -196,6 +197,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
     blob.add("cluster_axis", bundle.cluster_axis, "float32")
     blob.add("cluster_bone", bundle.cluster_bone, "uint32")
     clips = []
+    follow: dict[str, list[float]] = {}  # the follow camera per clip (prt_torch.player.follow): 4 floats a frame
     sources = [(name, ch.clip(name)) for name in ch.clips]
     if motions:
         from prt_torch.rig.retarget import retarget_file
@@ -209,6 +211,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         key = f"clip:{name}"
         blob.add(key, local[:, :, :3, :].reshape(len(local), ch.num_joints, 12), "float32")
         clips.append({"name": name, "fps": float(clip.fps), "frames": int(len(local)), "array": key})
+        follow[name] = clip_follow(ch, clip).flat()
     check(bool(clips), f"{bundle.run_dir}: the character has no clips to play")
     names = list(bundle.brdf_names)
     rpo_entries = []
@@ -307,7 +310,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         "max_peaks": MAX_PAGE_PEAKS,
         "camera": {"center": center.astype(float).tolist(), "radius": radius, "azimuth": CAMERA_AZIMUTH,
                    "elevation": CAMERA_ELEVATION, "distance": CAMERA_DISTANCE, "view_angle": 30.0,
-                   "up": [0.0, 0.0, 1.0], "width": 640, "height": 480},
+                   "up": [0.0, 0.0, 1.0], "width": 640, "height": 480, "follow": follow},
         "background": [0.08, 0.08, 0.1],
         "tonemap": {"middle": 0.3, "white_percentile": 99.5, "gamma": GAMMA},
         "material": {**material.summary(), "texture": texture},
