@@ -90,3 +90,14 @@ def test_no_issue_numbers(doc: Path) -> None:
     """The docs state facts, not the project's history: no "issue NN" references."""
     hits = re.findall(r".{0,30}\bissues? \d+.{0,30}", doc.read_text(), flags=re.I)
     assert not hits, f"{doc.name}: issue numbers in the text: {hits}"
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: p.name)
+def test_no_empty_sections(doc: Path) -> None:
+    """No heading is followed directly by another of the same or a higher level (a section without a body: a
+    section inserted between a heading and its text)."""
+    text = re.sub(r"```.*?```", "code", doc.read_text(), flags=re.S)  # a body; its '#' lines are comments
+    lines = [line for line in text.splitlines() if line.strip()]
+    empty = [a for a, b in zip(lines, lines[1:], strict=False)
+             if (m := re.match(r"(#+) ", a)) and (n := re.match(r"(#+) ", b)) and len(n.group(1)) <= len(m.group(1))]
+    assert not empty, f"{doc.name}: sections without a body: {empty}"
