@@ -23,7 +23,7 @@ from prt_torch.compare.reference import compare_lights, front_facing, reference_
 from prt_torch.errors import PrtError, check
 from prt_torch.io import atomic_path, atomic_write_json, atomic_write_text
 from prt_torch.rundir import RunDir
-from prt_torch.scoring.images import ImageRenderer, player_camera
+from prt_torch.scoring.images import ImageRenderer, clip_cameras, player_camera
 from prt_torch.scoring.rpos import DIFFUSE, GLOSSY, player_brdfs
 from prt_torch.scoring.sampling import evenly_spaced
 from prt_torch.scoring.shading import ShippingShader
@@ -385,9 +385,17 @@ def run_compare(run_dir: str | Path | RunDir, methods: list[str] | None = None, 
     light_ref = lights.reference
     bar = ProgressBar(progress, len(all_idx), "images and reference")
     renderer = ImageRenderer(ctx.character.rest_vertices, faces, camera, albedo=albedo)
+    # each image framed as the player frames that frame of its clip (the follow camera, the image-PSNR camera
+    # contract: prt_torch.scoring.images.clip_cameras); a cloth sequence keeps its sequence camera
+    cams = None if is_deformable(ctx.dataset.attrs) else clip_cameras(
+        ctx.character, {n: ctx.dataset.clip_by_name(n, ctx.character, recorded_fps(ctx.dataset.attrs))
+                        for n in dict.fromkeys(fs.clips[f] for f in all_idx)},
+        [fs.clips[f] for f in all_idx], fs.frame_index[all_idx])
     try:
         for j, f in enumerate(all_idx):
             pos = fs.positions[f]
+            if cams is not None:
+                renderer.set_camera(cams[j])
             mask = renderer.mask(pos)
             per = {b: {n: shaded[b][n][j] for n in rows} for b in rpos}
             if f in img_idx:

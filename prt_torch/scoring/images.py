@@ -1,6 +1,8 @@
 """Images on the shipping path: the player's camera, renderer and tone map.
 
-The player's camera (:func:`player_camera`: :attr:`prt_torch.player.Player.eye` rule and its window size),
+The player's camera (:func:`player_camera`: :attr:`prt_torch.player.Player.eye` rule and its window size; the
+frames of a clip at the player's follow camera, :func:`clip_cameras`: :mod:`prt_torch.player.follow`, the image-PSNR
+camera contract),
 its :class:`~prt_torch.player.render.MeshRenderer` and its tone map
 (:func:`~prt_torch.player.tonemap.auto_tonemap`), fixed ONCE per frame from the truth radiance and applied
 to every prediction of that frame (:meth:`ImageRenderer.frame_images`). The mask holds the pixels *fully*
@@ -23,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from prt_torch.errors import check
 from prt_torch.scoring.statistics import image_sse
 
 if TYPE_CHECKING:
@@ -39,6 +42,33 @@ class Camera:
     eye: np.ndarray
     center: np.ndarray
     window_hw: tuple[int, int] = WINDOW_HW
+
+
+def clip_cameras(character: Any, plans: Mapping[str, Any], clips: list[str], frame_index: np.ndarray,
+                 window_hw: tuple[int, int] = WINDOW_HW) -> list[Camera]:
+    """Per frame ``f`` the player's follow camera (:func:`prt_torch.player.follow.clip_follow`) of the clip
+    ``clips[f]`` as ``prt play --clip`` plays it, at its frame ``frame_index[f]``: ``plans[name]`` is the clip's
+    :class:`~prt_torch.rig.load.PlanClip`-like entry (``.clip`` the frames played, ``.frame_index`` their indices in
+    the source clip, ascending), so a frame of a split's frame range is framed as the player frames that range. Every
+    image of a clip's frames is thereby framed as the player frames that frame (the image-PSNR camera contract)."""
+    from prt_torch.player.follow import clip_follow
+    from prt_torch.player.player import camera_eye
+    from prt_torch.shapes import check_shape
+
+    frame_index = np.asarray(frame_index, dtype=np.int64)
+    check_shape(frame_index, "F", name="clip cameras: frame_index", dims={"F": len(clips)})
+    out: list[Camera | None] = [None] * len(clips)
+    for name in dict.fromkeys(clips):
+        plan = plans[name]
+        track = clip_follow(character, plan.clip)
+        sel = np.flatnonzero([c == name for c in clips])
+        src = np.asarray(plan.frame_index, dtype=np.int64)
+        at = np.minimum(np.searchsorted(src, frame_index[sel]), len(src) - 1)
+        check(bool(np.all(src[at] == frame_index[sel])), f"clip cameras: frames of {name!r} outside its clip")
+        for i, a in zip(sel, at, strict=True):
+            c, r = track.at(int(a))
+            out[i] = Camera(np.asarray(camera_eye(c, r), np.float64), np.asarray(c, np.float64), tuple(window_hw))
+    return [c for c in out if c is not None]
 
 
 def player_camera(character: Any, window_hw: tuple[int, int] = WINDOW_HW,
@@ -80,9 +110,19 @@ class ImageRenderer:
         tex = albedo is not None and albedo.texture is not None
         self.renderer = MeshRenderer(rest_vertices, faces, window_size=(w, h), off_screen=True,
                                      uv=albedo.uv if tex else None, texture=albedo.texture if tex else None)
-        self.renderer.set_camera(camera.eye, camera.center)
+        self.set_camera(camera)
         self.n_vertices = int(np.asarray(rest_vertices).shape[0])
         self._white = np.full((self.n_vertices, 3), 255, np.uint8)
+
+    def set_camera(self, camera: Camera) -> None:
+        """Render from ``camera`` from now on (a frame's :func:`clip_cameras` entry; same window size)."""
+        from prt_torch.errors import PrtError
+
+        if tuple(camera.window_hw) != tuple(self.camera.window_hw):
+            raise PrtError(f"image camera window {camera.window_hw} differs from the renderer's "
+                           f"{self.camera.window_hw}")
+        self.camera = camera
+        self.renderer.set_camera(camera.eye, camera.center)
 
     def surface(self, radiance: np.ndarray) -> np.ndarray:
         """The surface radiance ``(..., V, 3)`` of ``radiance (..., V, 3)``: times the per-vertex base colour
