@@ -123,7 +123,6 @@ UNUSED_LAZY: dict[str, dict[str, str]] = {
         "prt_torch.sh.zonal: torch": _TORCH_TENSORS,
         "prt_torch.rig.material -> prt_torch.brdf": _MATERIAL_RPO,
         "prt_torch.rig.material -> prt_torch.brdf.rpo": _MATERIAL_RPO,
-        "prt_torch.rig.material -> prt_torch.brdf.factor": _MATERIAL_RPO,
         "prt_torch.rundir -> prt_torch.models.visibility": _LOAD_MODEL,
     },
 }
