@@ -74,9 +74,11 @@ class PageSession:
         return bool(self.page.evaluate("window.prt.ready.then(a => a !== null)"))
 
     def frame(self, state: dict[str, Any]) -> tuple[np.ndarray, dict[str, float]]:
-        """Set ``state`` (``window.prt.setState``), render one step; ``(H, W, 3)`` uint8 image, step timings. The
-        camera is the fixed one (the Python player's ``pose`` eye) unless ``state`` says ``"camera": "follow"``."""
-        state = {"camera": "fixed", **state}
+        """Set ``state`` (``window.prt.setState``), render one step; ``(H, W, 3)`` uint8 image, step timings. As the
+        Python player draws its frames: the fixed camera (its ``pose`` eye), no floor and the site's tone map of the
+        lighting, unless ``state`` says ``"camera": "follow"`` / ``"floor": True`` / ``"tonemap": {...}`` (a state
+        of an earlier frame does not leak into this one: the page keeps what it was last told)."""
+        state = {"camera": "fixed", "floor": False, "tonemap": None, **state}
         self.page.evaluate("s => window.prt.setState(s)", state)
         stats = self.page.evaluate("window.prt.render()")
         px = self.page.evaluate("window.prt.readPixels()")

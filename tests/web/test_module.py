@@ -9,7 +9,10 @@
 * the site's follow-camera track (``camera.follow[clip]``, (cx, cy, cz, radius) per frame) moves the page's camera
   to the Python player's ``camera_eye`` of that frame's centre and radius;
 * the page opened from disk (file://) says on the page to serve it with ``prt web RUN --serve``;
-* the page opens on the manifest's start clip and BRDF (the Python player's default BRDF; the run's held-out clip).
+* the page opens on the manifest's start clip and BRDF (the Python player's default BRDF; the run's held-out clip);
+* the floor receives the sun's learned shadow: its vertices' visible fractions are onnxruntime's of the site's peak
+  graph on the same receivers, some in shadow, and its irradiance is a quadrature of the residual lighting over the
+  upper hemisphere.
 """
 
 from __future__ import annotations
@@ -198,13 +201,13 @@ def test_page_opens_on_the_start_clip_and_brdf(checked_site: tuple[Path, Any], b
         assert ps.wait_ready(), ps.page.evaluate("window.prt.error")
         got = ps.page.evaluate("() => ({clip: window.prt.app.clipInfo.name, brdf: window.prt.app.m.rpos["
                                "window.prt.app.brdf].name, note: document.getElementById('clipNote').textContent, "
-                               "floor: window.prt.app.floor.position.z, inScene: window.prt.app.scene.children."
-                               "includes(window.prt.app.floor)})")
+                               "floor: window.prt.app.floor.position.z, inScene: window.prt.app.floor.parent === "
+                               "window.prt.app.character})")
         assert ps.errors == []
     finally:
         ps.page.close()
     assert got["clip"] == st["clip"] and got["brdf"] == st["brdf"] and st["clip"] in got["note"]
-    lowest = float(run.character.rest_vertices[:, 2].min())  # a plain floor just under the rest feet
+    lowest = float(run.character.rest_vertices[:, 2].min())  # the floor just under the rest feet
     assert got["inScene"] and lowest - 0.01 * m["camera"]["radius"] < got["floor"] < lowest
 
 
@@ -231,3 +234,54 @@ def test_shipped_example_plays_two_characters(checked_site: tuple[Path, Any], br
     finally:
         ps.page.close()
     assert got["n"] == 6 and len(got["chars"]) == 2
+
+
+def test_floor_receives_the_suns_learned_shadow(checked_site: tuple[Path, Any], page: Any) -> None:
+    from prt_torch.sh.basis import sh_basis
+    from prt_torch.web.peaks import PeakGraph
+    from prt_torch.web.site import ASSETS, PEAKS_MODEL, read_manifest
+
+    m = read_manifest(checked_site[0])
+    sky = next(x for x in m["lights"] if x["name"] == "sky")
+    assert sky["peaks"], "the tiny site's sky has its sun apart"
+    brdf = next(r["name"] for r in m["rpos"] if r["brdf"])  # an analytic BRDF: the peaks are shaded
+    page.frame({"light": "sky", "camera": "fixed", "playing": False, "unshadowed": False, "perPixel": False,
+                "peaks": True, "clip": "wave", "frame": 4, "brdf": brdf, "lightAngle": 0.3, "tonemap": None,
+                "floor": True})
+    fl = page.page.evaluate("window.prt.floor()")
+    pk = page.page.evaluate("window.prt.activePeaks()")
+    n, n_p = len(fl["points"]) // 3, len(pk["angular_radii"])
+    pts = np.reshape(fl["points"], (1, n, 3)).astype(np.float32)
+    nrm = np.broadcast_to(np.array([0, 0, 1], np.float32), (1, n, 3))
+    skin = np.reshape(fl["skin"], (1, -1, 4, 4)).astype(np.float32)
+    want = PeakGraph(checked_site[0] / ASSETS / PEAKS_MODEL)(
+        pts, nrm, skin, np.reshape(pk["directions"], (-1, 3)).astype(np.float32),
+        np.asarray(pk["angular_radii"], np.float32))[0]  # (n, P)
+    got = np.reshape(fl["visibility"], (n, 4))[:, :n_p]
+    assert np.linalg.norm(got - want) <= 1e-5 * np.linalg.norm(want)
+    assert (want < 0.5).any(), "the character casts no sun shadow on the floor"
+    assert (want > 0.999).mean() > 0.5, "the shadow covers most of the floor"
+    # the residual lighting's irradiance at +z: a quadrature of sum_lm f_lm y_lm(w) cos(theta) over the upper
+    # hemisphere (midpoint rule in (cos theta, phi)), f_lm = sum_k g_kl y_lm(s_k)
+    order = m["order"]
+    res = sky["peaks"]
+    f = sum(sh_basis(np.asarray(d, np.float64) / np.linalg.norm(d), order)[:, None] *
+            np.repeat(np.asarray(g, np.float64), [2 * band + 1 for band in range(order)], axis=0)
+            for d, g in zip(res["dirs"], res["coeffs"], strict=True))  # (C, 3)
+    nu, nphi = 400, 800
+    mu = (np.arange(nu) + 0.5) / nu
+    phi = (np.arange(nphi) + 0.5) / nphi * 2 * np.pi
+    mm, pp = np.meshgrid(mu, phi, indexing="ij")
+    s = np.sqrt(1 - mm ** 2)
+    w = np.stack([s * np.cos(pp), s * np.sin(pp), mm], -1).reshape(-1, 3)
+    e_ref = (sh_basis(w, order) @ f * mm.reshape(-1, 1)).sum(0) * (1 / nu) * (2 * np.pi / nphi)
+    np.testing.assert_allclose(fl["irradiance"], e_ref, rtol=1e-4, atol=1e-4 * np.abs(e_ref).max())
+    # the colours: albedo / pi (E + sum_p E_p max(l_p.z, 0) V_p), tone-mapped with the lighting's peaks-on tone map
+    tm = res["tonemap"]
+    lz = np.maximum(np.reshape(pk["directions"], (-1, 3))[:, 2], 0)
+    irr = np.asarray(fl["irradiance"])[None] + (got * lz[None]) @ np.asarray(res["powers"])  # (n, 3)
+    x = np.maximum(np.asarray(fl["albedo"])[None] / np.pi * irr * tm["exposure"], 0)
+    col = np.minimum(x * (1 + x / tm["white"] ** 2) / (1 + x), 1) ** (1 / m["tonemap"]["gamma"])
+    np.testing.assert_allclose(np.reshape(fl["colors"], (n, 3)), col, rtol=1e-5, atol=1e-6)
+    lit = col[want[:, 0] > 0.999].mean()
+    assert col[want[:, 0] < 0.5].mean() < lit, "the shadow does not darken the floor"

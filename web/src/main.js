@@ -1,15 +1,15 @@
 // The browser player page, built on the three.js module prt-character.js (PRTCharacter: posing, onnxruntime-web,
 // the RPO shading of the learned visibility and the peaks): this file is an app of the module like any other - its
 // own renderer, scene, camera (the Python player's: camera_eye around the character, or the site's per-frame follow
-// track camera.follow[clip] = (cx, cy, cz, radius) per frame when `prt web` wrote one), a floor plane under the
-// character, the controls and keys, and window.prt, the page's scripting interface (used by `prt web --check`,
+// track camera.follow[clip] = (cx, cy, cz, radius) per frame when `prt web` wrote one), a Lambert floor under the
+// character that receives the sun's learned shadow (PRTFloor), the controls and keys, and window.prt, the page's scripting interface (used by `prt web --check`,
 // `prt bench web` and tests/web).
 // ?characters=K (1..64): K instances of the character in one draw on a grid, each with its own pose (clip c % #clips,
 // 3 c frames later), the latent graph run once with batch K; ?texwidth=W forces the texture width (shading.js);
 // ?decode=cpu: the whole visibility graph per frame; ?form=matrix: the matrix form of the shading; ?paused.
 import * as THREE from 'three';
 import * as ort from 'onnxruntime-web';
-import { PRTCharacter, PRTLighting } from './prt-character.js';
+import { PRTCharacter, PRTFloor, PRTLighting } from './prt-character.js';
 import { Poser } from './posing.js';
 import { TEXTURE_WIDTH } from './shading.js';
 
@@ -66,8 +66,7 @@ class App {
       20 * m.camera.radius * this.gridScale);
     this.camera.up.set(...m.camera.up);
     this.scene.add(character);
-    this.floor = makeFloor(character, m);
-    this.scene.add(this.floor);
+    this.floor = new PRTFloor(character, { albedo: [0.4, 0.4, 0.4] }); // a child of the character: the sun's shadow
     this.applyCamera();
   }
 
@@ -123,6 +122,7 @@ class App {
     const t0 = performance.now();
     this.applyCamera();
     const c = await this.character.update();
+    if (this.floor.visible) await this.floor.update();
     const t2p = performance.now();
     this.renderer.render(this.scene, this.camera);
     if (this.syncGpu) { // wait for the draw itself, not just its submission: read one pixel back
@@ -159,19 +159,6 @@ class App {
   }
 }
 
-// a plain floor under the character (z = the rest mesh's lowest point, a hair below so that the soles do not fight
-// it), 8 radii wide (the crowd's grid: wider), a grey a step lighter than the background; it receives no shadow
-function makeFloor(character, m) {
-  const r = m.camera.radius * character.gridScale;
-  const g = new THREE.PlaneGeometry(8 * r, 8 * r);
-  const bg = m.background;
-  const mat = new THREE.MeshBasicMaterial({ color: new THREE.Color(bg[0] + 0.1, bg[1] + 0.1, bg[2] + 0.1) });
-  const floor = new THREE.Mesh(g, mat);
-  floor.name = 'floor';
-  floor.position.set(m.camera.center[0], m.camera.center[1], character.floorHeight - 0.002 * m.camera.radius);
-  return floor;
-}
-
 // -- UI ---------------------------------------------------------------------------------------------------
 function bindUi(app) {
   const m = app.m;
@@ -199,6 +186,7 @@ function bindUi(app) {
     $('unshadowed').checked = app.unshadowed;
     $('peaks').checked = app.peaksOn;
     $('follow').checked = app.cameraMode === 'follow';
+    $('floor').checked = app.floor.visible;
   };
   app.sync = sync;
   $('clip').onchange = (e) => { app.clip = Number(e.target.value); app.frame = 0; sync(); };
@@ -210,6 +198,7 @@ function bindUi(app) {
   $('unshadowed').onchange = (e) => { app.unshadowed = e.target.checked; sync(); };
   $('peaks').onchange = (e) => { app.peaksOn = e.target.checked; app.applyLight(); sync(); };
   $('perPixel').onchange = (e) => { app.perPixel = e.target.checked; };
+  $('floor').onchange = (e) => { app.floor.visible = e.target.checked; };
   $('follow').onchange = (e) => { app.cameraMode = e.target.checked ? 'follow' : 'fixed'; app.applyCamera(); };
   $('followRow').hidden = !(m.camera.follow && Object.keys(m.camera.follow).length);
   // keyboard shortcuts of the Python player (Player._bind_keys) plus playback keys
@@ -320,6 +309,7 @@ window.prt = {
     if ('perPixel' in s) app.perPixel = s.perPixel;
     if ('tonemap' in s) app.exposure = s.tonemap;
     if ('syncGpu' in s) app.syncGpu = s.syncGpu;
+    if ('floor' in s) app.floor.visible = Boolean(s.floor);
     if ('camera' in s) {
       if (s.camera !== 'follow' && s.camera !== 'fixed') throw new Error(`camera must be "follow" or "fixed", not ${JSON.stringify(s.camera)}`);
       app.cameraMode = s.camera;
@@ -376,6 +366,13 @@ window.prt = {
     return { decode: app.decode ? 'gpu' : 'visibility graph', characters: app.nChars, state: app.layout,
       basis: app.basisLayout || null, renderer: e ? gl.getParameter(e.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER),
       maxTextureSize: gl.getParameter(gl.MAX_TEXTURE_SIZE), wasmThreads: this.wasmThreads };
+  },
+  // the floor: its vertices in the character's frame (n*3), each peak's visible fraction there (n*4), the residual
+  // lighting's irradiance at +z, its colours (n*3)
+  floor() {
+    const f = this.app.floor;
+    return { points: Array.from(f.points), visibility: Array.from(f.visibility), irradiance: f.irradiance,
+      colors: Array.from(f.geometry.attributes.color.array), albedo: f.albedo, skin: Array.from(this.app.character.skins) };
   },
   activePeaks() { const pk = this.app.activePeaks(); return pk ? { directions: Array.from(this.app.peakDirs), angular_radii: pk.angular_radii } : null; },
   skin() { return Array.from(this.app.poser.skin); },

@@ -19,6 +19,7 @@
 // its local frame. A PRTLighting (preset by name or index, rotation about the world's z, peaks on/off) can be
 // shared by any number of characters; each reads the preset of that name from its own site (its SH order, its tone
 // map). The output is display-referred (tone-mapped and gamma-encoded by the shader, as the Python player shows it).
+// PRTFloor(character) is a floor under it that receives the sun's learned shadow (the same peak graph).
 //
 // Material options: brdf (a name of the site's catalogue; default the site's start BRDF: the character's own
 // material when it has one), unshadowed, perPixel (the base-colour texture per pixel), instances (K characters in
@@ -740,4 +741,118 @@ async function shadingSource() {
     glslSource = await res.text();
   }
   return glslSource;
+}
+
+// Lambert's irradiance kernel per band (Ramamoorthi-Hanrahan): A_0 = pi, A_1 = 2 pi / 3, odd l > 1: 0, even l:
+// 2 pi (-1)^(l/2 - 1) / ((l + 2)(l - 1)) l! / (2^l ((l/2)!)^2)
+export function lambertBand(l) {
+  if (l === 1) return 2 * Math.PI / 3;
+  if (l % 2 === 1) return 0;
+  let f = 1; // l! / (2^l ((l/2)!)^2)
+  for (let i = 1; i <= l; i++) f *= i / 2;
+  for (let i = 1; i <= l / 2; i++) f /= i * i;
+  return 2 * Math.PI * (l / 2 % 2 === 1 ? 1 : -1) / ((l + 2) * (l - 1)) * f;
+}
+
+// irradiance (RGB) at unit normal n of ZH lobes (dirs (K, 3), coeffs (K, ORDER) RGB; the shader's convention: SH
+// f_lm = g_kl y_lm(s_k)): E(n) = sum_k sum_l A_l g_kl (2l + 1) / (4 pi) P_l(s_k . n)
+export function lobeIrradiance(dirs, coeffs, n) {
+  const out = [0, 0, 0];
+  dirs.forEach((d, k) => {
+    const x = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+    let p0 = 1, p1 = x;
+    coeffs[k].forEach((rgb, l) => {
+      const pl = l === 0 ? 1 : l === 1 ? x : (() => { const p = ((2 * l - 1) * x * p1 - (l - 1) * p0) / l; p0 = p1; p1 = p; return p; })();
+      const w = lambertBand(l) * (2 * l + 1) / (4 * Math.PI) * pl;
+      for (let e = 0; e < 3; e++) out[e] += w * rgb[e];
+    });
+  });
+  return out;
+}
+
+const FLOOR_VERTEX = `
+in vec3 position;
+in vec3 color;
+uniform mat4 modelViewMatrix;
+uniform mat4 projectionMatrix;
+out vec3 v_color;
+void main() { v_color = color; gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); }`;
+const FLOOR_FRAGMENT = `
+in vec3 v_color;
+out vec4 fragColor;
+void main() { fragColor = vec4(v_color, 1.0); }`;
+
+// A Lambert floor under a character that receives the sun's learned shadow: its grid vertices are receivers of the
+// character's peak graph (the learned blockers; B, V dynamic: any receiver points), so each peak's visible fraction
+// at a floor vertex comes from the same graph that shadows the character. Radiance per vertex:
+//     albedo / pi (E_res(+z) + sum_p E_p max(l_p.z, 0) V_p)
+// (E_res: the residual lighting's irradiance, unshadowed; the peaks off or absent: the whole lighting's, no shadow),
+// tone-mapped as the character. A child of the character (its frame: z up, at the rest mesh's lowest point);
+// update() after the character's update().
+export class PRTFloor extends THREE.Mesh {
+  constructor(character, { size = 4, resolution = 48, albedo = [0.5, 0.5, 0.5], height } = {}) {
+    const m = character.m, r = m.camera.radius * character.gridScale;
+    const g = new THREE.PlaneGeometry(size * r, size * r, resolution, resolution);
+    g.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * g.attributes.position.count), 3));
+    super(g, new THREE.RawShaderMaterial({ glslVersion: THREE.GLSL3, vertexShader: 'precision highp float;\n' + FLOOR_VERTEX,
+      fragmentShader: 'precision highp float;\n' + FLOOR_FRAGMENT, side: THREE.DoubleSide }));
+    this.name = 'floor';
+    this.character = character;
+    this.albedo = albedo;
+    const z = height === undefined ? character.floorHeight - 0.002 * m.camera.radius : height;
+    this.position.set(m.camera.center[0], m.camera.center[1], z);
+    this.frustumCulled = false;
+    const n = g.attributes.position.count, p = g.attributes.position.array;
+    this.points = new Float32Array(3 * n); // the vertices in the character's frame
+    for (let i = 0; i < n; i++) {
+      this.points[3 * i] = p[3 * i] + this.position.x;
+      this.points[3 * i + 1] = p[3 * i + 1] + this.position.y;
+      this.points[3 * i + 2] = z;
+    }
+    this.visibility = new Float32Array(n * MAX_PEAKS).fill(1); // (n, 4) peak p's visible fraction at vertex i
+    this.irradiance = [0, 0, 0];
+    character.add(this);
+  }
+
+  // each peak's visible fraction at the floor's vertices (the union of every instance's blockers), then the colours
+  async update() {
+    const c = this.character, n = this.points.length / 3;
+    const pk = c.activePeaks();
+    this.visibility.fill(1);
+    if (pk && c.peakSession && !c.unshadowed) {
+      const K = c.nChars, P = pk.directions.length;
+      const pos = new Float32Array(K * 3 * n), nrm = new Float32Array(K * 3 * n);
+      for (let k = 0; k < K; k++) {
+        for (let i = 0; i < n; i++) { // instance k's receivers in its own frame (its grid offset removed)
+          for (let e = 0; e < 3; e++) pos[3 * (k * n + i) + e] = this.points[3 * i + e] - c.offsets[3 * k + e];
+          nrm[3 * (k * n + i) + 2] = 1;
+        }
+      }
+      const v = await c.runPeaks(pos, nrm, c.skins, c.peakDirs, pk.angular_radii, K);
+      for (let k = 0; k < K; k++) for (let i = 0; i < n; i++) for (let q = 0; q < P; q++) this.visibility[MAX_PEAKS * i + q] *= v[(k * n + i) * P + q];
+    }
+    this.shade();
+  }
+
+  // the floor's colours from its visibility under the character's lighting and tone map
+  shade() {
+    const c = this.character, m = c.m, u = c.material.uniforms;
+    c.applyUniforms();
+    const pk = c.activePeaks(), lt = m.lights[c.light];
+    const lobes = pk || lt, nl = lobes.dirs.length;
+    const dirs = Array.from({ length: nl }, (_, k) => u.u_lobeDir.value[k].toArray()); // turned into the frame
+    this.irradiance = lobeIrradiance(dirs, lobes.coeffs, [0, 0, 1]);
+    const nP = pk ? pk.directions.length : 0;
+    const col = this.geometry.attributes.color.array, n = this.points.length / 3;
+    const ex = u.u_exposure.value, wh = u.u_white.value, gm = u.u_gamma.value;
+    for (let i = 0; i < n; i++) {
+      for (let e = 0; e < 3; e++) {
+        let E = this.irradiance[e];
+        for (let p = 0; p < nP; p++) E += pk.powers[p][e] * Math.max(c.peakDirs[3 * p + 2], 0) * this.visibility[MAX_PEAKS * i + p];
+        const x = Math.max(this.albedo[e] / Math.PI * E * ex, 0);
+        col[3 * i + e] = Math.pow(Math.min(x * (1 + x / (wh * wh)) / (1 + x), 1), 1 / gm);
+      }
+    }
+    this.geometry.attributes.color.needsUpdate = true;
+  }
 }
