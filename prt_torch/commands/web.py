@@ -50,8 +50,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         print(f"site written: {out} ({manifest['n_vertices']} vertices, {len(manifest['clips'])} clips, "
               f"BRDFs {[r['name'] for r in manifest['rpos']]}, lights {[x['name'] for x in manifest['lights']]}; "
-              f"peaks {_peaks_summary(manifest)}); the page opens on {_start_summary(manifest)}; pages: index.html "
-              f"(the player), example.html (two characters and three.js objects in one scene, the three.js module)")
+              f"peaks {_peaks_summary(manifest)}); the player opens on {_start_summary(manifest)}; example.html: two "
+              f"characters and three.js objects in one scene (the three.js module)")
     status = 0
     if args.check:
         from prt_torch.web.check import check_site
@@ -81,9 +81,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _start_summary(manifest: dict) -> str:
-    """``"wave (held out of training ...), BRDF material"``: what the page opens on, and why that clip."""
+    """``"wave: held out of training (...); BRDF material"``: what the page opens on, and why that clip."""
     st = manifest.get("start") or {}
-    return f"{st.get('clip')} ({st.get('clip_why')}), BRDF {st.get('brdf')}"
+    return f"{st.get('clip')}: {st.get('clip_why')}; BRDF {st.get('brdf')}"
 
 
 def _peaks_summary(manifest: dict) -> str:

@@ -66,7 +66,7 @@ class App {
       20 * m.camera.radius * this.gridScale);
     this.camera.up.set(...m.camera.up);
     this.scene.add(character);
-    this.floor = new PRTFloor(character, { albedo: [0.4, 0.4, 0.4] }); // a child of the character: the sun's shadow
+    this.floor = new PRTFloor(character, { albedo: [0.3, 0.3, 0.3] }); // a child of the character: the sun's shadow
     this.applyCamera();
   }
 

@@ -790,7 +790,7 @@ void main() { fragColor = vec4(v_color, 1.0); }`;
 // tone-mapped as the character. A child of the character (its frame: z up, at the rest mesh's lowest point);
 // update() after the character's update().
 export class PRTFloor extends THREE.Mesh {
-  constructor(character, { size = 4, resolution = 48, albedo = [0.5, 0.5, 0.5], height } = {}) {
+  constructor(character, { size = 4, resolution = 80, albedo = [0.5, 0.5, 0.5], height } = {}) {
     const m = character.m, r = m.camera.radius * character.gridScale;
     const g = new THREE.PlaneGeometry(size * r, size * r, resolution, resolution);
     g.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * g.attributes.position.count), 3));
