@@ -251,7 +251,9 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
     peak_source = write_peak_graph(bundle.run, ch, out / ASSETS / PEAKS_MODEL) \
         if any(pl.peaks for pl in peak_lights.values()) else None
     peak_graph = out / ASSETS / PEAKS_MODEL if peak_source is not None else None
-    tonemaps = player_tonemaps(bundle.run_dir, lights, names[0], ch, clips[0]["name"], peak_lights, peak_graph,
+    start = start_entry(bundle, [c["name"] for c in clips], [r["name"] for r in rpo_entries])
+    # the tone map per lighting as the Python player fixes it for what the page opens on (its BRDF, its clip)
+    tonemaps = player_tonemaps(bundle.run_dir, lights, start["brdf"], ch, start["clip"], peak_lights, peak_graph,
                                material)
     peaks_model = None
     if peak_graph is not None:
@@ -301,7 +303,7 @@ def write_site(run: str | os.PathLike[str], out: str | os.PathLike[str], env: tu
         "clips": clips,
         "rpos": rpo_entries,
         "default_brdf": names[0],
-        "start": start_entry(bundle, [c["name"] for c in clips], [r["name"] for r in rpo_entries]),
+        "start": start,
         "lights": [{**_lighting_entry(n, lt), "tonemap": tonemaps[n]["whole"],
                     "peaks": _with_tonemap(peaks_entry(peak_lights[n]), tonemaps[n].get("peaks"))}
                    for n, lt in lights.items()],
