@@ -44,3 +44,35 @@ def test_textured_character_page_matches_player_and_samples_per_pixel(tiny_run: 
     body = per_vertex.sum(-1) > 3 * 40
     # per-pixel texturing shows the checker's edges inside triangles: a different, but related, frame
     assert 15.0 < image_psnr(per_pixel, per_vertex, body) < 45.0
+
+
+def test_page_opens_on_the_characters_own_material(tiny_run: Path, browser: Any, tmp_path: Path) -> None:
+    """A character with its own material: the site's start BRDF is ``material`` (the Python player's default) and the
+    page opens on it; its tone map is the Python player's for that BRDF on the start clip's first frame."""
+    from prt_torch.player.lighting import load_lighting
+    from prt_torch.player.player import Player
+    from prt_torch.web.check import served_page
+    from prt_torch.web.site import read_manifest, site_local, write_site
+
+    run = _textured_run(tiny_run, tmp_path / "run")
+    site = tmp_path / "site"
+    write_site(run, site, material_rpo=True, env_presets=False)
+    m = read_manifest(site)
+    assert m["start"]["brdf"] == "material" and "material" in [r["name"] for r in m["rpos"]]
+    p = Player(run, threads=1, graph="split")  # its default BRDF: the character's own material
+    try:
+        p.lighting = load_lighting(None, p.order)
+        p.rotate_light(0.0)
+        state = p.pose(site_local(p.character, m["start"]["clip"], 0))
+        p.exposure = None
+        p.colors(p.shade(state)[0])  # fixes the tone map from this first frame
+        want = p.exposure
+    finally:
+        p.close()
+    with served_page(site, browser=browser, query="") as ps:
+        assert ps.wait_ready(), ps.page.evaluate("window.prt.error")
+        got = ps.page.evaluate("window.prt.app.m.rpos[window.prt.app.brdf].name")
+        assert ps.errors == []
+    assert got == "material"
+    sky = m["lights"][0]["tonemap"]
+    assert abs(sky["exposure"] - want.exposure) <= 1e-6 * want.exposure
